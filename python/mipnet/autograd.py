@@ -1,0 +1,163 @@
+"""Reverse-mode autodiff: ``Function`` (a Rust kernel pair seen from Python) and the tape walk.
+
+Design (spec/style-anchors.md §3.1): Rust kernels are stateless ``*_fwd`` / ``*_bwd`` pairs; this
+module records which ``Function`` produced each ``Tensor`` and, on ``backward()``, visits the graph
+in reverse topological order (iterative DFS: a 12+12-iteration network is thousands of nodes deep).
+Gradients of broadcast inputs are summed back to the input's shape here, once, so no op's backward
+deals with broadcasting.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Callable
+
+import numpy as np
+
+from . import _core
+from .errors import DTypeError
+
+_state = threading.local()
+
+
+def is_grad_enabled() -> bool:
+    """Whether operations on tensors that require grad are recorded."""
+    return getattr(_state, "enabled", True)
+
+
+class _GradMode:
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+
+    def __enter__(self) -> None:
+        self.prev = is_grad_enabled()
+        _state.enabled = self.enabled
+
+    def __exit__(self, *exc: Any) -> None:
+        _state.enabled = self.prev
+
+    def __call__(self, fn: Callable) -> Callable:
+        def wrapped(*args: Any, **kwargs: Any) -> Any:
+            with self.__class__():
+                return fn(*args, **kwargs)
+
+        wrapped.__name__, wrapped.__doc__ = fn.__name__, fn.__doc__
+        return wrapped
+
+
+class no_grad(_GradMode):
+    """Context manager / decorator: nothing inside is recorded for backward (``torch.no_grad``)."""
+
+    def __init__(self) -> None:
+        super().__init__(False)
+
+
+class enable_grad(_GradMode):
+    """Context manager / decorator re-enabling recording inside a ``no_grad`` block."""
+
+    def __init__(self) -> None:
+        super().__init__(True)
+
+
+class Context:
+    """What a ``Function``'s forward leaves for its backward (``torch.autograd.function.FunctionCtx``)."""
+
+    def __init__(self, needs_input_grad: tuple[bool, ...]):
+        self.needs_input_grad = needs_input_grad
+        self.saved_tensors: tuple = ()
+
+    def save_for_backward(self, *arrays: Any) -> None:
+        self.saved_tensors = arrays
+
+
+class _Node:
+    __slots__ = ("fn", "ctx", "inputs")
+
+    def __init__(self, fn: type, ctx: Context, inputs: tuple):
+        self.fn, self.ctx, self.inputs = fn, ctx, inputs
+
+
+class Function:
+    """An op with a forward and a backward on numpy arrays (``torch.autograd.Function``).
+
+    ``forward(ctx, *args, **kwargs)`` receives Tensor arguments as their numpy arrays and returns one
+    array; ``backward(ctx, grad)`` returns one gradient (array or None) per positional argument.
+    """
+
+    name = "op"
+
+    @staticmethod
+    def forward(ctx: Context, *args: Any, **kwargs: Any) -> np.ndarray:
+        raise NotImplementedError
+
+    @staticmethod
+    def backward(ctx: Context, grad: np.ndarray) -> Any:
+        raise NotImplementedError
+
+    @classmethod
+    def apply(cls, *args: Any, **kwargs: Any):
+        from .tensor import Tensor
+
+        tensors = [a for a in args if isinstance(a, Tensor)]
+        dtypes = {t.data.dtype for t in tensors}
+        if len(dtypes) > 1:
+            shapes = ", ".join(f"{t.data.dtype}{list(t.shape)}" for t in tensors)
+            raise DTypeError(f"{cls.name}: inputs must share one dtype, got {shapes}")
+        needs = tuple(isinstance(a, Tensor) and a.requires_grad for a in args)
+        track = is_grad_enabled() and any(needs)
+        ctx = Context(needs)
+        out = cls.forward(ctx, *(a.data if isinstance(a, Tensor) else a for a in args), **kwargs)
+        result = Tensor._wrap(out, requires_grad=track)
+        if track:
+            result._node = _Node(cls, ctx, tuple(a if isinstance(a, Tensor) else None for a in args))
+        return result
+
+
+def unbroadcast(grad: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Sums a gradient of a broadcast result back to the shape of the input it came from."""
+    if grad.shape == tuple(shape):
+        return grad
+    return _core.sum_to_shape(grad, list(shape))
+
+
+def _topological_order(root) -> list:
+    """Tensors reachable from ``root`` through recorded ops, each after all tensors it depends on."""
+    order, visited, stack = [], set(), [(root, False)]
+    while stack:
+        t, expanded = stack.pop()
+        if expanded:
+            order.append(t)
+            continue
+        if id(t) in visited:
+            continue
+        visited.add(id(t))
+        stack.append((t, True))
+        if t._node is not None:
+            stack.extend((p, False) for p in t._node.inputs if p is not None and p.requires_grad and id(p) not in visited)
+    return order
+
+
+def backward(root, grad: np.ndarray) -> None:
+    """Accumulates d(root)/d(leaf) · grad into ``.grad`` of every leaf that requires grad, then frees
+    the graph (as torch does without ``retain_graph``)."""
+    from .tensor import Tensor
+
+    grads = {id(root): grad}
+    for t in reversed(_topological_order(root)):
+        g = grads.pop(id(t), None)
+        if g is None:
+            continue
+        node = t._node
+        if node is None:
+            t.grad = Tensor._wrap(g.copy()) if t.grad is None else Tensor._wrap(t.grad.data + g)
+            continue
+        in_grads = node.fn.backward(node.ctx, g)
+        if not isinstance(in_grads, tuple):
+            in_grads = (in_grads,)
+        for inp, ig in zip(node.inputs, in_grads):
+            if inp is None or ig is None or not inp.requires_grad:
+                continue
+            ig = unbroadcast(np.asarray(ig, dtype=inp.data.dtype), inp.shape)
+            prev = grads.get(id(inp))
+            grads[id(inp)] = ig if prev is None else prev + ig
+        t._node = None

@@ -1,0 +1,166 @@
+//! Elementwise arithmetic with numpy/torch broadcasting, reductions back to a broadcast shape,
+//! and means over axes.
+//!
+//! | op | forward | backward |
+//! |---|---|---|
+//! | add / sub / mul | `binary_fwd` | `binary_bwd`: (g, ±g) or (g·b, g·a), each summed to its input's shape |
+//! | alpha·x + beta | `affine_fwd` | alpha·g (`affine_fwd` with beta 0) |
+//! | sum to shape | `sum_to_shape` | broadcast of g |
+//! | mean over axes | `mean_fwd` | `mean_bwd`: g / count broadcast over the reduced axes |
+
+use crate::{Error, Float, Result};
+use ndarray::{ArrayD, ArrayViewD, Axis, IxDyn, Zip};
+
+/// Which binary op.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Binary {
+    Add,
+    Sub,
+    Mul,
+}
+
+impl Binary {
+    /// Parses "add" | "sub" | "mul".
+    pub fn parse(name: &str) -> Result<Binary> {
+        match name {
+            "add" => Ok(Binary::Add),
+            "sub" => Ok(Binary::Sub),
+            "mul" => Ok(Binary::Mul),
+            other => Err(Error::arg("binary", format!("unknown binary op {other:?}"))),
+        }
+    }
+    /// The op name used in error messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Binary::Add => "add",
+            Binary::Sub => "sub",
+            Binary::Mul => "mul",
+        }
+    }
+}
+
+/// The broadcast shape of two shapes (numpy rules: align right, sizes equal or 1).
+pub fn broadcast_shape(op: &'static str, a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
+    let n = a.len().max(b.len());
+    // Right-aligned size of `s` at output axis i (1 where `s` has no such axis).
+    let at = |s: &[usize], i: usize| if i + s.len() >= n { s[i + s.len() - n] } else { 1 };
+    (0..n)
+        .map(|i| match (at(a, i), at(b, i)) {
+            (x, y) if x == y || y == 1 => Ok(x),
+            (1, y) => Ok(y),
+            _ => Err(Error::shape(op, "shapes cannot be broadcast together", &[("a", a), ("b", b)])),
+        })
+        .collect()
+}
+
+/// out = a ∘ b with broadcasting.
+///
+/// Torch: `a + b`, `a - b`, `a * b`.
+pub fn binary_fwd<F: Float>(op: Binary, a: ArrayViewD<F>, b: ArrayViewD<F>) -> Result<ArrayD<F>> {
+    let shape = broadcast_shape(op.name(), a.shape(), b.shape())?;
+    let (ab, bb) = (a.broadcast(shape.clone()).unwrap(), b.broadcast(shape.clone()).unwrap());
+    let mut out = ArrayD::<F>::zeros(IxDyn(&shape));
+    let z = Zip::from(&mut out).and(&ab).and(&bb);
+    match op {
+        Binary::Add => z.par_for_each(|o, &x, &y| *o = x + y),
+        Binary::Sub => z.par_for_each(|o, &x, &y| *o = x - y),
+        Binary::Mul => z.par_for_each(|o, &x, &y| *o = x * y),
+    }
+    Ok(out)
+}
+
+/// Grads of `binary_fwd` w.r.t. a and b, each summed back to its input's shape.
+pub struct BinaryGrads<F> {
+    pub a: ArrayD<F>,
+    pub b: ArrayD<F>,
+}
+
+/// # Gradient
+/// add: (g, g); sub: (g, −g); mul: (g·b, g·a); then each is summed over its broadcast axes.
+pub fn binary_bwd<F: Float>(op: Binary, a: ArrayViewD<F>, b: ArrayViewD<F>, g: ArrayViewD<F>) -> Result<BinaryGrads<F>> {
+    let shape = broadcast_shape(op.name(), a.shape(), b.shape())?;
+    if g.shape() != shape.as_slice() {
+        return Err(Error::shape(op.name(), "grad_output must have the broadcast shape",
+                                &[("a", a.shape()), ("b", b.shape()), ("grad_output", g.shape())]));
+    }
+    let (ga, gb) = match op {
+        Binary::Add => (g.to_owned(), g.to_owned()),
+        Binary::Sub => (g.to_owned(), g.mapv(|v| -v)),
+        Binary::Mul => (binary_fwd(Binary::Mul, g.view(), b.view())?, binary_fwd(Binary::Mul, g.view(), a.view())?),
+    };
+    Ok(BinaryGrads { a: sum_to_shape(ga.view(), a.shape())?, b: sum_to_shape(gb.view(), b.shape())? })
+}
+
+/// y = alpha·x + beta (scalar alpha, beta). Its backward is `affine_fwd(g, alpha, 0)`.
+pub fn affine_fwd<F: Float>(x: ArrayViewD<F>, alpha: F, beta: F) -> ArrayD<F> {
+    let x = x.as_standard_layout();
+    let mut y = ArrayD::<F>::zeros(x.raw_dim());
+    Zip::from(&mut y).and(&x).par_for_each(|y, &x| *y = alpha * x + beta);
+    y
+}
+
+/// Sums `g` down to `shape`, a shape `g`'s shape was broadcast from (leading axes dropped,
+/// size-1 axes kept as 1). Torch: `g.sum_to_size(shape)`.
+pub fn sum_to_shape<F: Float>(g: ArrayViewD<F>, shape: &[usize]) -> Result<ArrayD<F>> {
+    let op = "sum_to_shape";
+    let lead = g.ndim().checked_sub(shape.len())
+        .ok_or_else(|| Error::shape(op, "target has more axes than the gradient", &[("grad", g.shape()), ("target", shape)]))?;
+    if broadcast_shape(op, g.shape(), shape)? != g.shape() {
+        return Err(Error::shape(op, "target is not a broadcast source of the gradient", &[("grad", g.shape()), ("target", shape)]));
+    }
+    let mut out = g.to_owned();
+    // Leading axes vanish; then axes where the target has size 1 (and g does not) are summed, keeping them.
+    for _ in 0..lead {
+        out = out.sum_axis(Axis(0));
+    }
+    for (ax, &s) in shape.iter().enumerate() {
+        if s == 1 && out.shape()[ax] != 1 {
+            out = out.sum_axis(Axis(ax)).insert_axis(Axis(ax));
+        }
+    }
+    Ok(out)
+}
+
+fn check_axes(op: &'static str, shape: &[usize], axes: &[usize]) -> Result<()> {
+    let mut seen = vec![false; shape.len()];
+    for &a in axes {
+        if a >= shape.len() || std::mem::replace(&mut seen[a], true) {
+            return Err(Error::shape(op, format!("invalid or repeated axis {a} in {axes:?}"), &[("input", shape)]));
+        }
+    }
+    if axes.iter().any(|&a| shape[a] == 0) {
+        return Err(Error::shape(op, "mean over an empty axis", &[("input", shape)]));
+    }
+    Ok(())
+}
+
+/// Mean over `axes`, keeping them as size-1 axes when `keepdim`.
+///
+/// Torch: `x.mean(dim=axes, keepdim=keepdim)`.
+pub fn mean_fwd<F: Float>(x: ArrayViewD<F>, axes: &[usize], keepdim: bool) -> Result<ArrayD<F>> {
+    check_axes("mean", x.shape(), axes)?;
+    let count: usize = axes.iter().map(|&a| x.shape()[a]).product();
+    let mut out = x.to_owned();
+    for &a in axes {
+        out = out.sum_axis(Axis(a)).insert_axis(Axis(a));
+    }
+    out.mapv_inplace(|v| v / F::from_usize(count).unwrap());
+    if !keepdim {
+        let kept: Vec<usize> = (0..x.ndim()).filter(|a| !axes.contains(a)).map(|a| x.shape()[a]).collect();
+        out = out.into_shape_with_order(IxDyn(&kept)).expect("same element count");
+    }
+    Ok(out)
+}
+
+/// # Gradient
+/// dx = g / count, broadcast over the reduced axes (g with or without the kept axes).
+pub fn mean_bwd<F: Float>(g: ArrayViewD<F>, input_shape: &[usize], axes: &[usize]) -> Result<ArrayD<F>> {
+    check_axes("mean", input_shape, axes)?;
+    let count: usize = axes.iter().map(|&a| input_shape[a]).product();
+    let kept: Vec<usize> = (0..input_shape.len()).map(|a| if axes.contains(&a) { 1 } else { input_shape[a] }).collect();
+    let g = g.as_standard_layout();
+    let g = g.view().into_shape_with_order(IxDyn(&kept))
+        .map_err(|_| Error::shape("mean", "grad_output does not fit the reduced shape", &[("grad_output", g.shape()), ("input", input_shape)]))?;
+    let scale = F::one() / F::from_usize(count).unwrap();
+    Ok(g.broadcast(input_shape).unwrap().mapv(|v| v * scale))
+}

@@ -1,0 +1,36 @@
+//! Op inventory: every primitive op of MIPNet (spec §(b)), its kernel pair, and its torch equivalent.
+//!
+//! | op | forward | backward (grads to) | torch |
+//! |---|---|---|---|
+//! | relu / sigmoid / tanh | `act::unary_fwd` | `act::unary_bwd` (x, from y) | `F.relu`, `torch.sigmoid`, `torch.tanh` |
+//! | add / sub / mul, broadcasting | `elementwise::binary_fwd` | `elementwise::binary_bwd` (both, summed to shape) | `a + b`, `a - b`, `a * b` |
+//! | alpha * x + beta | `elementwise::affine_fwd` | `elementwise::affine_fwd` with beta 0 | `x * a + b` |
+//! | sum to a broadcast shape | `elementwise::sum_to_shape` | broadcast | `g.sum_to_size(shape)` |
+//! | mean over axes | `elementwise::mean_fwd` | `elementwise::mean_bwd` | `x.mean(dim, keepdim)` |
+//! | cat / slice along an axis | `shape::cat_fwd`, `shape::slice_fwd` | `shape::slice_bwd` | `torch.cat`, `x[..., a:b]` |
+//! | conv2d (any kernel, stride, per-axis zero padding, bias) | `conv::conv2d_fwd` | `conv::conv2d_bwd` (x, w, b) | `F.conv2d` |
+//! | instance norm (no affine) | `norm::instance_norm_fwd` | `norm::instance_norm_bwd` (x) | `F.instance_norm` |
+//! | batch norm (train / eval) | `norm::batch_norm_fwd` | `norm::batch_norm_bwd` (x, w, b) | `F.batch_norm` |
+//! | avg_pool2d | `pool::avg_pool2d_fwd` | `pool::avg_pool2d_bwd` (x) | `F.avg_pool2d` |
+//! | softmax along an axis | `softmax::softmax_fwd` | `softmax::softmax_bwd` (x, from y) | `torch.softmax` |
+//! | pad (zeros / replicate) | `pad::pad2d_fwd` | `pad::pad2d_bwd` (x) | `F.pad` |
+//! | grid_sample (bilinear; zeros / border; align_corners) | `sample::grid_sample_fwd` | `sample::grid_sample_bwd` (x, grid) | `F.grid_sample` |
+//! | interpolate bilinear (align_corners=True) | `sample::interpolate_bilinear_fwd` | `sample::interpolate_bilinear_bwd` (x) | `F.interpolate` |
+//! | unfold / fold | `sample::unfold_fwd`, `sample::fold_fwd` | each other | `F.unfold`, `F.fold` |
+//! | IP correlation (seed stack, grouped channel mean) | `corr::ip_corr_fwd` | `corr::ip_corr_bwd` (fl, stack) | view/mul/mean (spec a.6) |
+//! | RLS correlation (rx x ry window) | `corr::rls_corr_fwd` | `corr::rls_corr_bwd` (fl, warped) | pad/slice/mul/mean (spec a.7) |
+//! | convex x4 upsampling | `upsample::convex_upsample_fwd` | `upsample::convex_upsample_bwd` (flow, mask) | softmax/unfold/sum (spec a.9) |
+//! | masked L1 sequence loss term | `loss::masked_l1_fwd` | `loss::masked_l1_bwd` (pred) | `(d - gt).abs()[valid].mean()` |
+
+pub mod act;
+pub mod conv;
+pub mod corr;
+pub mod elementwise;
+pub mod loss;
+pub mod norm;
+pub mod pad;
+pub mod pool;
+pub mod sample;
+pub mod shape;
+pub mod softmax;
+pub mod upsample;

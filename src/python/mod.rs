@@ -1,0 +1,58 @@
+//! The `mipnet._core` extension module: one binding file per op family, each with `register`.
+
+use pyo3::prelude::*;
+
+mod act;
+mod conv;
+mod convert;
+mod corr;
+mod elementwise;
+mod errors;
+mod loss;
+mod norm;
+mod pad;
+mod pool;
+mod sample;
+mod shape;
+mod softmax;
+mod upsample;
+
+/// Sets the number of threads mipnet's kernels use (>= 1).
+#[pyfunction]
+fn set_num_threads(n: usize) -> PyResult<()> {
+    Ok(crate::parallel::set_num_threads(n)?)
+}
+
+/// The number of threads mipnet's kernels use.
+#[pyfunction]
+fn get_num_threads() -> usize {
+    crate::parallel::num_threads()
+}
+
+/// Called by `os.register_at_fork(after_in_child=...)`: the child rebuilds the pool on first use.
+#[pyfunction]
+fn _reset_after_fork() {
+    crate::parallel::reset_after_fork()
+}
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(_reset_after_fork, m)?)?;
+    errors::register(m)?;
+    act::register(m)?;
+    conv::register(m)?;
+    corr::register(m)?;
+    elementwise::register(m)?;
+    loss::register(m)?;
+    norm::register(m)?;
+    pad::register(m)?;
+    pool::register(m)?;
+    sample::register(m)?;
+    shape::register(m)?;
+    softmax::register(m)?;
+    upsample::register(m)?;
+    Ok(())
+}
