@@ -93,4 +93,4 @@ def test_errors_name_op_and_shapes():
     with pytest.raises(mipnet.errors.ShapeError, match="cat"):
         M.cat([a, b], 1)
     with pytest.raises(mipnet.errors.ShapeError, match="backward"):
-        (a * 2).backward(np.ones((3, 3), np.float32))
+        (mipnet.tensor(rand((2, 3)), requires_grad=True) * 2).backward(np.ones((3, 3), np.float32))
