@@ -1,0 +1,231 @@
+"""MIPNet's building blocks (spec a.3 encoder with iAFF, a.8 update blocks), on mipnet's engine.
+
+Module and attribute names follow spec (f.1) exactly, so ``state_dict()`` keys equal the canonical
+key table (f.2) and weights move unchanged between mipnet and PyTorch.
+"""
+
+from __future__ import annotations
+
+from . import ops
+from .nn import BatchNorm2d, Conv2d, InstanceNorm2d, Module, Sequential, init
+from .tensor import Tensor
+
+
+class MSCAMBranch(Module):
+    """conv1 1x1 c->c/r, BN, ReLU, conv2 1x1 c/r->c, BN: one branch of MS-CAM (spec a.3)."""
+
+    def __init__(self, c: int, r: int = 4):
+        super().__init__()
+        self.conv1 = Conv2d(c, c // r, 1)
+        self.bn1 = BatchNorm2d(c // r)
+        self.conv2 = Conv2d(c // r, c, 1)
+        self.bn2 = BatchNorm2d(c)
+
+    def forward(self, z: Tensor) -> Tensor:
+        return self.bn2(self.conv2(ops.relu(self.bn1(self.conv1(z)))))
+
+
+class MSCAM(Module):
+    """Multi-scale channel attention: M(Z) = sigmoid(L(Z) + G(GAP(Z))), broadcast over H, W."""
+
+    def __init__(self, c: int, r: int = 4):
+        super().__init__()
+        self.local = MSCAMBranch(c, r)
+        self.add_module("global", MSCAMBranch(c, r))
+
+    def forward(self, z: Tensor) -> Tensor:
+        gap = ops.mean(z, (2, 3), keepdim=True)
+        return ops.sigmoid(self.local(z) + getattr(self, "global")(gap))
+
+
+class IAFF(Module):
+    """Two-stage iterative attentional feature fusion with two independent MS-CAMs (MXNet semantics):
+    W1 = M1(X + Y); Z1 = W1 X + (1 - W1) Y; W2 = M2(Z1); out = W2 X + (1 - W2) Y."""
+
+    def __init__(self, c: int, r: int = 4):
+        super().__init__()
+        self.att1 = MSCAM(c, r)
+        self.att2 = MSCAM(c, r)
+
+    @staticmethod
+    def _gate(w: Tensor, x: Tensor, y: Tensor) -> Tensor:
+        return w * x + (1 - w) * y
+
+    def forward(self, x: Tensor, y: Tensor) -> Tensor:
+        z1 = self._gate(self.att1(x + y), x, y)
+        return self._gate(self.att2(z1), x, y)
+
+
+class ResBlock(Module):
+    """DIP residual block with instance norm, an always-present 1x1 projection, and iAFF fusion:
+    out = ReLU(iAFF(y, x')) (or ReLU(x' + y) without AFF)."""
+
+    def __init__(self, cin: int, cout: int, stride: int, use_aff: bool):
+        super().__init__()
+        self.conv1 = Conv2d(cin, cout, 3, stride=stride, padding=1)
+        self.conv2 = Conv2d(cout, cout, 3, padding=1)
+        self.proj = Conv2d(cin, cout, 1, stride=stride)
+        self.norm1, self.norm2, self.norm3 = InstanceNorm2d(cout), InstanceNorm2d(cout), InstanceNorm2d(cout)
+        if use_aff:
+            self.fuse = IAFF(cout)
+        self.use_aff = use_aff
+
+    def forward(self, x: Tensor) -> Tensor:
+        y = ops.relu(self.norm1(self.conv1(x)))
+        y = ops.relu(self.norm2(self.conv2(y)))
+        xp = self.norm3(self.proj(x))
+        return ops.relu(self.fuse(y, xp) if self.use_aff else xp + y)
+
+
+class Stem(Module):
+    """Conv 7x7 stride 2, instance norm, ReLU."""
+
+    def __init__(self):
+        super().__init__()
+        self.conv = Conv2d(3, 64, 7, stride=2, padding=3)
+        self.norm = InstanceNorm2d(64)
+
+    def forward(self, x: Tensor) -> Tensor:
+        return ops.relu(self.norm(self.conv(x)))
+
+
+class Encoder(Module):
+    """BasicEncoderQuarter with iAFF: (B,3,H,W) -> (B,256,H/4,W/4) (spec a.3)."""
+
+    def __init__(self, use_aff: bool = True):
+        super().__init__()
+        self.stem = Stem()
+        self.layer1 = Sequential(ResBlock(64, 64, 1, use_aff), ResBlock(64, 64, 1, use_aff))
+        self.layer2 = Sequential(ResBlock(64, 96, 2, use_aff), ResBlock(96, 96, 1, use_aff))
+        self.layer3 = Sequential(ResBlock(96, 128, 1, use_aff), ResBlock(128, 128, 1, use_aff))
+        self.out = Conv2d(128, 256, 1)
+        backbone = [self.stem.conv, self.out] + [c for layer in (self.layer1, self.layer2, self.layer3)
+                                                 for blk in layer.children() for c in (blk.conv1, blk.conv2, blk.proj)]
+        for conv in backbone:
+            init.kaiming_normal_(conv.weight, mode="fan_out", nonlinearity="relu")
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.out(self.layer3(self.layer2(self.layer1(self.stem(x)))))
+
+
+class IPMotionEncoder(Module):
+    """DIP SmallMotionEncoder: corr (10) and flow (2) -> 96 motion channels (94 + the flow)."""
+
+    def __init__(self, corr_channels: int):
+        super().__init__()
+        self.corr1 = Conv2d(corr_channels, 96, 1)
+        self.flow1 = Conv2d(2, 64, 5, padding=2)
+        self.flow2 = Conv2d(64, 32, 3, padding=1)
+        self.out = Conv2d(128, 94, 3, padding=1)
+
+    def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
+        a = ops.relu(self.corr1(corr))
+        b = ops.relu(self.flow2(ops.relu(self.flow1(flow))))
+        return ops.cat([ops.relu(self.out(ops.cat([a, b], 1))), flow], 1)
+
+
+class RLSMotionEncoder(Module):
+    """DIP BasicMotionEncoder: corr (21) and flow (2) -> 128 motion channels (126 + the flow)."""
+
+    def __init__(self, corr_channels: int):
+        super().__init__()
+        self.corr1 = Conv2d(corr_channels, 64, 1)
+        self.corr2 = Conv2d(64, 128, 3, padding=1)
+        self.flow1 = Conv2d(2, 64, 5, padding=2)
+        self.flow2 = Conv2d(64, 64, 3, padding=1)
+        self.out = Conv2d(192, 126, 3, padding=1)
+
+    def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
+        a = ops.relu(self.corr2(ops.relu(self.corr1(corr))))
+        b = ops.relu(self.flow2(ops.relu(self.flow1(flow))))
+        return ops.cat([ops.relu(self.out(ops.cat([a, b], 1))), flow], 1)
+
+
+def _gru_step(convz: Conv2d, convr: Conv2d, convq: Conv2d, h: Tensor, x: Tensor) -> Tensor:
+    """z = σ(Wz [h,x]); r = σ(Wr [h,x]); q = tanh(Wq [r h, x]); h' = (1 - z) h + z q."""
+    hx = ops.cat([h, x], 1)
+    z = ops.sigmoid(convz(hx))
+    r = ops.sigmoid(convr(hx))
+    q = ops.tanh(convq(ops.cat([r * h, x], 1)))
+    return (1 - z) * h + z * q
+
+
+class ConvGRU(Module):
+    """3x3 convolutional GRU (paper §3.2.2)."""
+
+    def __init__(self, hidden: int, inp: int):
+        super().__init__()
+        self.convz = Conv2d(hidden + inp, hidden, 3, padding=1)
+        self.convr = Conv2d(hidden + inp, hidden, 3, padding=1)
+        self.convq = Conv2d(hidden + inp, hidden, 3, padding=1)
+
+    def forward(self, h: Tensor, x: Tensor) -> Tensor:
+        return _gru_step(self.convz, self.convr, self.convq, h, x)
+
+
+class SepConvGRU(Module):
+    """Separable GRU: a (1,5) horizontal pass, then a (5,1) vertical pass (DIP/RAFT)."""
+
+    def __init__(self, hidden: int, inp: int):
+        super().__init__()
+        c = hidden + inp
+        self.convz_h = Conv2d(c, hidden, (1, 5), padding=(0, 2))
+        self.convr_h = Conv2d(c, hidden, (1, 5), padding=(0, 2))
+        self.convq_h = Conv2d(c, hidden, (1, 5), padding=(0, 2))
+        self.convz_v = Conv2d(c, hidden, (5, 1), padding=(2, 0))
+        self.convr_v = Conv2d(c, hidden, (5, 1), padding=(2, 0))
+        self.convq_v = Conv2d(c, hidden, (5, 1), padding=(2, 0))
+
+    def forward(self, h: Tensor, x: Tensor) -> Tensor:
+        h = _gru_step(self.convz_h, self.convr_h, self.convq_h, h, x)
+        return _gru_step(self.convz_v, self.convr_v, self.convq_v, h, x)
+
+
+class DispHead(Module):
+    """Delta = conv2(ReLU(conv1(h))): the (Δx, Δy) update."""
+
+    def __init__(self, hidden: int, mid: int):
+        super().__init__()
+        self.conv1 = Conv2d(hidden, mid, 3, padding=1)
+        self.conv2 = Conv2d(mid, 2, 3, padding=1)
+
+    def forward(self, h: Tensor) -> Tensor:
+        return self.conv2(ops.relu(self.conv1(h)))
+
+
+class MaskHead(Module):
+    """M = 0.25 · conv2(ReLU(conv1(h))): the 144-channel convex-upsampling mask."""
+
+    def __init__(self, hidden: int):
+        super().__init__()
+        self.conv1 = Conv2d(hidden, 256, 3, padding=1)
+        self.conv2 = Conv2d(256, 144, 1)
+
+    def forward(self, h: Tensor) -> Tensor:
+        return self.conv2(ops.relu(self.conv1(h))) * 0.25
+
+
+class UpdateBlock(Module):
+    """motion encoder -> GRU on cat[h; context, motion] -> (h, mask, delta) (spec a.8)."""
+
+    def __init__(self, motion: Module, gru: Module, head_mid: int, hidden: int = 128):
+        super().__init__()
+        self.motion = motion
+        self.gru = gru
+        self.disp_head = DispHead(hidden, head_mid)
+        self.mask_head = MaskHead(hidden)
+
+    def forward(self, h: Tensor, context: Tensor, corr: Tensor, flow: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        x = ops.cat([context, self.motion(flow, corr)], 1)
+        h = self.gru(h, x)
+        return h, self.mask_head(h), self.disp_head(h)
+
+
+def ip_update_block(hidden: int = 128, context: int = 128) -> UpdateBlock:
+    """U_IP: DIP SmallUpdateBlock (10 correlation channels, ConvGRU 3x3, 128-channel head)."""
+    return UpdateBlock(IPMotionEncoder(10), ConvGRU(hidden, context + 96), 128, hidden)
+
+
+def rls_update_block(corr_channels: int, hidden: int = 128, context: int = 128) -> UpdateBlock:
+    """U_RLS: DIP BasicUpdateBlock (rectangular-search correlation, SepConvGRU, 256-channel head)."""
+    return UpdateBlock(RLSMotionEncoder(corr_channels), SepConvGRU(hidden, context + 128), 256, hidden)

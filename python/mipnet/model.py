@@ -1,0 +1,306 @@
+"""``MIPNet``: the Multilevel Inverse Patchmatch Network (Leng et al., JMSE 2023) on mipnet's engine.
+
+Layer by layer as ``spec/mipnet-architecture.md`` (a) describes, with the binding clarifications of
+its section (g). Flow fields are carried as numpy-backed tensors in level pixel units with
+f = (f_x, f_y), f_x = -disparity, f_y = 0 (vertical constraint).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Any, Sequence
+
+import numpy as np
+
+from . import ops
+from .autograd import no_grad
+from .blocks import Encoder, UpdateBlock, ip_update_block, rls_update_block
+from .errors import ArgumentError, ShapeError
+from .nn import BatchNorm2d, Module
+from .random import default_generator
+from .tensor import Tensor
+
+DIVISOR = 16  # H and W of the padded input must be multiples of 16 (stride 4 encoder x 4x4 pooling)
+MIN_SIZE = 32
+
+
+@dataclasses.dataclass(frozen=True)
+class MIPNetConfig:
+    """The architecture switches of the paper's ablations (Table 1, Table 2) and the gamma init."""
+
+    use_aff: bool = True
+    use_ip: bool = True
+    use_rls: bool = True
+    rx: int = 3
+    ry: int = 1
+    vertical_constraint: bool = True
+    gamma_shape: float = 2.0
+    gamma_scale: float = 16.0
+    max_disp_init: float = 192.0
+
+    def __post_init__(self) -> None:
+        if not (self.use_ip or self.use_rls):
+            raise ArgumentError("MIPNet: at least one of use_ip / use_rls must be on")
+        if self.rx < 0 or self.ry < 0:
+            raise ArgumentError(f"MIPNet: rx and ry must be >= 0, got rx={self.rx}, ry={self.ry}")
+        if self.gamma_shape <= 0 or self.gamma_scale <= 0 or self.max_disp_init <= 0:
+            raise ArgumentError("MIPNet: gamma_shape, gamma_scale and max_disp_init must be positive")
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+
+class MIPNet(Module):
+    """MIPNet stereo network. ``model(left, right)`` returns positive left-view disparity.
+
+    Args:
+        use_aff, use_ip, use_rls, rx, ry, vertical_constraint, gamma_shape, gamma_scale,
+        max_disp_init: see :class:`MIPNetConfig`.
+
+    Call: ``forward(left, right, iters=(6, 6), seed=20, disp_init=None)``.
+
+    Inputs: HxWx3 uint8 RGB arrays, HxW grayscale arrays, or (N,3,H,W) float arrays / Tensors in
+    0..255; any H, W >= 32 (replicate-padded to a multiple of 16 and cropped back).
+    Eval mode returns a numpy array (H,W) (or (N,H,W) for batched input) of the model's dtype;
+    training mode returns the list of supervised predictions, each an (N,1,H,W) Tensor.
+    """
+
+    def __init__(self, **config: Any):
+        super().__init__()
+        self.config = MIPNetConfig(**config)
+        cfg = self.config
+        self.encoder = Encoder(use_aff=cfg.use_aff)
+        if cfg.use_ip:
+            self.update_ip = ip_update_block()
+        if cfg.use_rls:
+            self.update_rls = rls_update_block((2 * cfg.rx + 1) * (2 * cfg.ry + 1))
+        self._bn_frozen = False
+
+    # ---- modes ---------------------------------------------------------------------------------------
+    def train(self, mode: bool = True) -> "MIPNet":
+        super().train(mode)
+        if self._bn_frozen:
+            self.freeze_bn()
+        return self
+
+    def freeze_bn(self) -> "MIPNet":
+        """Keeps every BatchNorm in eval mode (running statistics), also after ``train()`` (RAFT habit)."""
+        self._bn_frozen = True
+        for m in self.modules():
+            if isinstance(m, BatchNorm2d):
+                object.__setattr__(m, "training", False)
+        return self
+
+    def unfreeze_bn(self) -> "MIPNet":
+        self._bn_frozen = False
+        return self.train(self.training)
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.encoder.stem.conv.weight.dtype
+
+    def _blocks(self) -> list[tuple[str, UpdateBlock]]:
+        """The sub-updates of one iteration, in order: IP then RLS (spec a.8)."""
+        return [(name, getattr(self, "update_" + name)) for name, on in
+                (("ip", self.config.use_ip), ("rls", self.config.use_rls)) if on]
+
+    # ---- the forward pass ----------------------------------------------------------------------------
+    def forward(self, left: Any, right: Any, iters: int | Sequence[int] = (6, 6), seed: int | None = 20,
+                disp_init: Any = None):
+        n16, n4 = _parse_iters(iters)
+        l, batched = _as_batch(left, "left", self.dtype)
+        r, _ = _as_batch(right, "right", self.dtype)
+        if l.shape != r.shape:
+            raise ShapeError(f"MIPNet: left and right images differ in shape: left={list(l.shape)}, right={list(r.shape)}")
+        pad = _padding(l.shape[2], l.shape[3])
+        if self.training:
+            preds = self._run(l, r, pad, n16, n4, seed, disp_init)
+            return [_crop(p, pad, l.shape) for p in preds]
+        with no_grad():
+            disp = _crop(self._run(l, r, pad, n16, n4, seed, disp_init)[-1], pad, l.shape).numpy()[:, 0]
+        return disp if batched else disp[0]
+
+    def _run(self, left: np.ndarray, right: np.ndarray, pad: tuple[int, int, int, int], n16: int, n4: int,
+             seed: int | None, disp_init: Any) -> list[Tensor]:
+        n = left.shape[0]
+        # normalise to [-1, 1] and replicate-pad both images identically: I' = 2 I / 255 - 1
+        images = ops.pad(Tensor(np.concatenate([left, right]) * (2.0 / 255.0) - 1.0), list(pad), mode="replicate")
+        fl4, fr4 = ops.split(self.encoder(images), [n, n], 0)
+        hidden4 = ops.tanh(fl4[:, :128])
+        context4 = ops.relu(fl4[:, 128:])
+        fl16, fr16, hidden16, context16 = (ops.avg_pool2d(t, 4, 4) for t in (fl4, fr4, hidden4, context4))
+        flow16 = self._initial_flow(n, fl16.shape[2], fl16.shape[3], seed, disp_init)
+        collect = self.training
+
+        preds: list[Tensor] = []
+        flow, mask = self._iterate(fl16, fr16, hidden16, context16, flow16, n16, preds if collect else None, 4)
+        if n4 == 0:
+            # eval: the hand-over field, convex x4 then bilinear x4 (spec g.3); training has its 1/16 predictions
+            return preds if collect else [self._prediction(flow, mask, 4)]
+        with no_grad():  # the hand-over field is detached (spec a.10)
+            flow4 = ops.convex_upsample(flow.detach(), mask.detach(), rate=4)
+        self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
+        return preds
+
+    def _iterate(self, fl: Tensor, fr: Tensor, hidden: Tensor, context: Tensor, flow: Tensor, iters: int,
+                 preds: list[Tensor] | None, bilinear: int | None) -> tuple[Tensor, Tensor]:
+        """``iters`` IPM iterations at one level. Appends a prediction after every sub-update when
+        ``bilinear`` is set (4: 1/16 level, convex x4 then bilinear x4; 1: 1/4 level), else only the
+        final one (eval at the 1/4 level) or none (eval at 1/16). Returns the last flow and mask."""
+        stack = _seed_stack(fr) if self.config.use_ip else None
+        blocks = self._blocks()
+        mask = None
+        for t in range(iters):
+            for b, (name, block) in enumerate(blocks):
+                flow = flow.detach()
+                corr = self._correlation(name, fl, fr, stack, flow)
+                hidden, mask, delta = block(hidden, context, corr, flow)
+                flow = flow + (_vertical_constraint(delta) if self.config.vertical_constraint else delta)
+                last = t == iters - 1 and b == len(blocks) - 1
+                if preds is not None and (bilinear is not None or last):
+                    preds.append(self._prediction(flow, mask, bilinear or 1))
+        return flow, mask
+
+    def _correlation(self, name: str, fl: Tensor, fr: Tensor, stack: Tensor | None, flow: Tensor) -> Tensor:
+        grid = _sampling_grid(flow.numpy())
+        if name == "ip":
+            # C_IP = F_L · W(S(F_R, Δ), f): warp the stack of seed-shifted right features once (a.6)
+            return ops.ip_correlation(fl, _warp(stack, grid), groups=2)
+        # C_RLS = F_L · S(W(F_R, f), Δ): warp, then a (2rx+1)x(2ry+1) window of shifts (a.7)
+        return ops.rls_correlation(fl, _warp(fr, grid), rx=self.config.rx, ry=self.config.ry)
+
+    @staticmethod
+    def _prediction(flow: Tensor, mask: Tensor | None, bilinear: int) -> Tensor:
+        """Full-resolution positive disparity -f_x from a level's flow (a.9)."""
+        fx = flow[:, 0:1]
+        up = fx if mask is None else ops.convex_upsample(fx, mask, rate=4)
+        if bilinear > 1:
+            h, w = up.shape[2], up.shape[3]
+            up = ops.interpolate(up, size=(h * bilinear, w * bilinear), mode="bilinear", align_corners=True) * float(bilinear)
+        return -up
+
+    def _initial_flow(self, n: int, h16: int, w16: int, seed: int | None, disp_init: Any) -> Tensor:
+        """The 1/16 flow (N,2,h16,w16): f_x = -d0 with d0 the gamma draw (a.5, g.1) or ``disp_init``."""
+        dtype = self.dtype
+        if disp_init is not None:
+            d0 = np.asarray(disp_init.numpy() if isinstance(disp_init, Tensor) else disp_init, dtype=np.float64)
+            if d0.shape != (n, 1, h16, w16):
+                raise ShapeError(f"MIPNet: disp_init must have shape {[n, 1, h16, w16]} (N,1,H/16,W/16 of the padded "
+                                 f"input), got {list(d0.shape)}")
+            if not np.all(np.isfinite(d0)):
+                raise ArgumentError("MIPNet: disp_init contains NaN or inf")
+        else:
+            rng = default_generator() if (self.training or seed is None) else np.random.default_rng(seed)
+            d0 = gamma_draw(rng, (n, 1, h16, w16), self.config.gamma_shape, self.config.gamma_scale,
+                            self.config.max_disp_init) / 16.0
+        return Tensor(np.concatenate([-d0, np.zeros_like(d0)], axis=1).astype(dtype))
+
+    # ---- weights ---------------------------------------------------------------------------------------
+    def save(self, path: str, **metadata: str) -> None:
+        """Writes the state dict to a safetensors file with the config in its metadata (atomic)."""
+        from .weights import save_safetensors
+
+        meta = {"format": "mipnet", "config": self.config.to_json(), **{k: str(v) for k, v in metadata.items()}}
+        save_safetensors(path, self.state_dict(), meta)
+
+
+def load(path: str, strict: bool = True) -> MIPNet:
+    """A ``MIPNet`` built from the config stored in a safetensors file written by ``MIPNet.save``,
+    with its weights loaded."""
+    from .weights import load_safetensors
+
+    tensors, meta = load_safetensors(path)
+    config = json.loads(meta["config"]) if "config" in meta else {}
+    model = MIPNet(**config)
+    model.load_state_dict(tensors, strict=strict)
+    return model
+
+
+def gamma_draw(rng: np.random.Generator, shape: tuple[int, ...], k: float, theta: float, max_disp: float) -> np.ndarray:
+    """d0 ~ Gamma(k, theta) clamped to [0, max_disp] (spec g.1): for integer k,
+    d0 = -theta * Σ_{j=1..k} ln U_j with U_j = 1 - uniform[0,1) in (0, 1]."""
+    if float(k).is_integer():
+        u = 1.0 - rng.random((int(k),) + tuple(shape))
+        d0 = -theta * np.log(u).sum(axis=0)
+    else:
+        d0 = rng.gamma(k, theta, size=shape)
+    return np.clip(d0, 0.0, max_disp)
+
+
+def _parse_iters(iters: int | Sequence[int]) -> tuple[int, int]:
+    n16, n4 = (iters, iters) if isinstance(iters, (int, np.integer)) else tuple(iters)
+    if n16 < 1 or n4 < 0:
+        raise ArgumentError(f"MIPNet: iters=(n16, n4) needs n16 >= 1 and n4 >= 0, got {iters}")
+    return int(n16), int(n4)
+
+
+def _as_batch(img: Any, name: str, dtype: np.dtype) -> tuple[np.ndarray, bool]:
+    """(N,3,H,W) array in 0..255 of ``dtype`` from HxWx3 / HxW / HxWx1 / (N,3,H,W) input; whether batched."""
+    a = img.numpy() if isinstance(img, Tensor) else np.asarray(img)
+    batched = a.ndim == 4
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim == 3:
+        if a.shape[2] == 1:
+            a = np.repeat(a, 3, axis=2)
+        if a.shape[2] != 3:
+            raise ShapeError(f"MIPNet: {name} image must be HxW, HxWx1 or HxWx3, got shape {list(a.shape)}")
+        a = a.transpose(2, 0, 1)[None]
+    if a.ndim != 4 or a.shape[1] != 3:
+        raise ShapeError(f"MIPNet: {name} must be HxWx3, HxW or (N,3,H,W), got shape {list(np.shape(img))}")
+    if a.shape[2] < MIN_SIZE or a.shape[3] < MIN_SIZE:
+        raise ShapeError(f"MIPNet: {name} image is {a.shape[2]}x{a.shape[3]}, smaller than {MIN_SIZE}x{MIN_SIZE} pixels")
+    if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise ArgumentError(f"MIPNet: {name} has unsupported dtype {a.dtype}")
+    a = a.astype(dtype)
+    if not np.all(np.isfinite(a)):
+        raise ArgumentError(f"MIPNet: {name} contains NaN or inf")
+    return np.ascontiguousarray(a), batched
+
+
+def _padding(h: int, w: int) -> tuple[int, int, int, int]:
+    """[left, right, top, bottom] replicate padding to a multiple of 16, split as spec (g.4)."""
+    ph, pw = -h % DIVISOR, -w % DIVISOR
+    return pw // 2, pw - pw // 2, ph // 2, ph - ph // 2
+
+
+def _crop(pred: Tensor, pad: tuple[int, int, int, int], shape: tuple[int, ...]) -> Tensor:
+    left, _, top, _ = pad
+    if pred.shape[2:] == shape[2:]:
+        return pred
+    return pred[:, :, top:top + shape[2], left:left + shape[3]]
+
+
+def _seed_stack(fr: Tensor) -> Tensor:
+    """cat[S_0..S_4] (N,5C,h,w): F_R shifted by the centre and the 4 diagonal seeds (ox, oy), clamped
+    at the border by replicate padding (spec a.6)."""
+    h, w = fr.shape[2], fr.shape[3]
+    shifted = [fr]
+    for ox, oy in ((-1, -1), (1, -1), (-1, 1), (1, 1)):
+        l, r, t, b = max(-ox, 0), max(ox, 0), max(-oy, 0), max(oy, 0)
+        padded = ops.pad(fr, [l, r, t, b], mode="replicate")
+        # S(y, x) = F_R(y + oy, x + ox) = padded(y + oy + t, x + ox + l)
+        shifted.append(padded[:, :, oy + t:oy + t + h, ox + l:ox + l + w])
+    return ops.cat(shifted, 1)
+
+
+def _sampling_grid(flow: np.ndarray) -> Tensor:
+    """grid_sample grid (N,h,w,2) for positions p + f(p), normalised with align_corners=True:
+    g = 2 (p + f) / max(size - 1, 1) - 1 (spec a.4)."""
+    n, _, h, w = flow.shape
+    ys, xs = np.meshgrid(np.arange(h, dtype=flow.dtype), np.arange(w, dtype=flow.dtype), indexing="ij")
+    gx = 2 * (xs + flow[:, 0]) / max(w - 1, 1) - 1
+    gy = 2 * (ys + flow[:, 1]) / max(h - 1, 1) - 1
+    return Tensor(np.stack([gx, gy], axis=-1))
+
+
+def _warp(features: Tensor, grid: Tensor) -> Tensor:
+    """W(F, f): bilinear sampling with border padding and align_corners=True."""
+    return ops.grid_sample(features, grid, mode="bilinear", padding_mode="border", align_corners=True)
+
+
+def _vertical_constraint(delta: Tensor) -> Tensor:
+    """(Δx, Δy) -> (Δx, 0): disparity moves only along the epipolar line."""
+    dx = delta[:, 0:1]
+    return ops.cat([dx, Tensor(np.zeros(dx.shape, dx.dtype))], 1)

@@ -1,0 +1,19 @@
+"""mipnet's global random state (weight init, training-mode gamma draws), seeded by ``manual_seed``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+_generator = np.random.default_rng()
+
+
+def manual_seed(seed: int) -> np.random.Generator:
+    """Reseeds the global generator (``torch.manual_seed``) and returns it."""
+    global _generator
+    _generator = np.random.default_rng(seed)
+    return _generator
+
+
+def default_generator() -> np.random.Generator:
+    """The global generator."""
+    return _generator
