@@ -124,8 +124,8 @@ class MIPNet(Module):
     def _run(self, left: np.ndarray, right: np.ndarray, pad: tuple[int, int, int, int], n16: int, n4: int,
              seed: int | None, disp_init: Any) -> list[Tensor]:
         n = left.shape[0]
-        # normalise to [-1, 1] and replicate-pad both images identically: I' = 2 I / 255 - 1
-        images = ops.pad(Tensor(np.concatenate([left, right]) * (2.0 / 255.0) - 1.0), list(pad), mode="replicate")
+        # normalise to [-1, 1] as spec a.1 writes it, I' = 2 (I / 255) - 1; replicate-pad both images identically
+        images = ops.pad(Tensor(2 * (np.concatenate([left, right]) / 255) - 1), list(pad), mode="replicate")
         fl4, fr4 = ops.split(self.encoder(images), [n, n], 0)
         hidden4 = ops.tanh(fl4[:, :128])
         context4 = ops.relu(fl4[:, 128:])

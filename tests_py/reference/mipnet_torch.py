@@ -516,8 +516,9 @@ class MIPNetTorch(nn.Module):
         Returns the final flow and the mask of the last sub-update.
         """
         mask = None
+        blocks = self._blocks(fl, fr)
         for _ in range(n_iters):
-            for block, correlate in self._blocks(fl, fr):
+            for block, correlate in blocks:
                 flow = flow.detach()
                 corr = correlate(flow)
                 h, mask, delta = block(h, c, corr, flow)

@@ -1,0 +1,156 @@
+"""The ``mipnet`` command line: ``info``, ``infer``, ``eval``. Also ``python -m mipnet``."""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+ASSETS = Path(__file__).resolve().parent / "assets"
+EXAMPLE_LEFT, EXAMPLE_RIGHT = ASSETS / "example_left.png", ASSETS / "example_right.png"
+UNTRAINED_SEED = 0
+
+
+def load_model(weights: str | None, quiet: bool = False):
+    """The model to run: the weights file given, else the default weights. No trained default weights
+    ship yet, so the default is the untrained network (seeded initialisation), and this says so."""
+    import mipnet
+
+    if weights:
+        return mipnet.load(weights).eval()
+    if not quiet:
+        print("WARNING: no trained MIPNet weights are available yet: this is the UNTRAINED network "
+              f"(random initialisation, seed {UNTRAINED_SEED}); its disparities are not meaningful. "
+              "Pass --weights FILE.safetensors to use trained weights.", file=sys.stderr)
+    mipnet.manual_seed(UNTRAINED_SEED)
+    return mipnet.MIPNet().eval()
+
+
+class Progress:
+    """A progress bar on a terminal; one line per step otherwise (logs, CI)."""
+
+    def __init__(self, total: int, label: str):
+        self.total, self.label, self.done, self.start = total, label, 0, time.perf_counter()
+        self.tty = sys.stderr.isatty()
+
+    def step(self, name: str) -> None:
+        self.done += 1
+        elapsed = time.perf_counter() - self.start
+        if self.tty:
+            filled = int(30 * self.done / self.total)
+            sys.stderr.write(f"\r{self.label} [{'#' * filled}{'.' * (30 - filled)}] {self.done}/{self.total} "
+                             f"{elapsed:6.1f}s {name[:40]:<40}")
+            if self.done == self.total:
+                sys.stderr.write("\n")
+        else:
+            sys.stderr.write(f"{self.label} {self.done}/{self.total} {name} ({elapsed:.1f}s)\n")
+        sys.stderr.flush()
+
+
+def _expand(pattern: str) -> list[str]:
+    paths = sorted(glob.glob(pattern)) if any(c in pattern for c in "*?[") else [pattern]
+    missing = [p for p in paths if not os.path.isfile(p)]
+    if not paths or missing:
+        raise SystemExit(f"mipnet: no such file: {pattern if not paths else missing[0]}")
+    return paths
+
+
+def cmd_infer(args: argparse.Namespace) -> int:
+    from . import geometry, io, viz
+
+    if (args.left is None) != (args.right is None):
+        raise SystemExit("mipnet infer: give both -l/--left and -r/--right, or neither (bundled example pair)")
+    lefts = _expand(args.left) if args.left else [str(EXAMPLE_LEFT)]
+    rights = _expand(args.right) if args.right else [str(EXAMPLE_RIGHT)]
+    if len(lefts) != len(rights):
+        raise SystemExit(f"mipnet infer: {len(lefts)} left images but {len(rights)} right images")
+    calib = io.read_calib(args.calib) if args.calib else None
+    model = load_model(args.weights)
+    out = Path(args.output_directory)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = Progress(len(lefts), "infer")
+    for lp, rp in zip(lefts, rights):
+        left, right = io.read_image(lp), io.read_image(rp)
+        disp = model(left, right, iters=tuple(args.iters), seed=args.seed)
+        stem = out / Path(lp).stem
+        _write_npy(f"{stem}_disp.npy", disp)
+        io.write_pfm(f"{stem}_disp.pfm", disp)
+        io.write_image(f"{stem}_disp.png", viz.colorize(disp, vmin=args.vmin, vmax=args.vmax))
+        if calib is not None:
+            depth = geometry.disparity_to_depth(disp, calib)
+            _write_npy(f"{stem}_depth.npy", depth)
+            points, colors = geometry.depth_to_points(depth, calib, image=left)
+            io.write_ply(f"{stem}_points.ply", points, colors)
+        progress.step(Path(lp).name)
+    print(f"wrote {len(lefts)} disparity map(s) to {out}/")
+    return 0
+
+
+def _write_npy(path: str, array: np.ndarray) -> None:
+    from ._fileutil import atomic_write
+
+    with atomic_write(path) as f:
+        np.save(f, array)
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    import mipnet
+
+    model = load_model(args.weights, quiet=True) if args.weights else mipnet.MIPNet()
+    print(f"mipnet {mipnet.__version__}  threads={mipnet.get_num_threads()}  dtype={model.dtype}")
+    print(f"weights: {args.weights or 'none (untrained network)'}")
+    print("config: " + ", ".join(f"{k}={v}" for k, v in vars(model.config).items()))
+    counts: dict[str, int] = {}
+    for name, p in model.named_parameters():
+        parts = name.split(".")
+        key = "encoder.fuse (iAFF)" if ".fuse." in name else ".".join(parts[:2])
+        counts[key] = counts.get(key, 0) + p.data.size
+    width = max(map(len, counts))
+    print("parameters:")
+    for key, n in counts.items():
+        print(f"  {key:<{width}}  {n:>10,}")
+    print(f"  {'total':<{width}}  {model.num_parameters():>10,}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="mipnet", description="MIPNet stereo matching on the CPU (Rust engine).")
+    p.add_argument("--threads", type=int, default=None, help="kernel threads (default: all cores / MIPNET_NUM_THREADS)")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    inf = sub.add_parser("infer", help="disparity (and depth, point cloud) for stereo pairs")
+    inf.add_argument("-l", "--left", help="left image or glob (default: the bundled example pair)")
+    inf.add_argument("-r", "--right", help="right image or glob, same order as --left")
+    inf.add_argument("-o", "--output_directory", "--output-directory", default="mipnet_out")
+    inf.add_argument("--weights", help="weights file (.safetensors written by MIPNet.save)")
+    inf.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
+    inf.add_argument("--calib", help="calib.txt (Middlebury/ETH3D) or K.txt: also write depth and a point cloud")
+    inf.add_argument("--vmin", type=float, default=None, help="colour range (default: 1st-99th percentile)")
+    inf.add_argument("--vmax", type=float, default=None)
+    inf.add_argument("--seed", type=int, default=20, help="seed of the gamma initialisation (default 20)")
+    inf.set_defaults(func=cmd_infer)
+
+    info = sub.add_parser("info", help="config, parameter counts per module, thread count")
+    info.add_argument("--weights", help="weights file to describe")
+    info.set_defaults(func=cmd_info)
+
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.threads:
+        import mipnet
+
+        mipnet.set_num_threads(args.threads)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
