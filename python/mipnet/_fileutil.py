@@ -5,7 +5,8 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-from typing import IO, Iterator
+from collections.abc import Iterator
+from typing import IO
 
 # The process umask, read once: mkstemp creates files with mode 0600, and the finished file
 # should get the permissions a plain ``open(path, "w")`` would have given it.

@@ -119,6 +119,62 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+DATASETS = ("synthetic", "synthetic-underwater", "sceneflow", "middlebury2014", "middeval3", "eth3d",
+            "kitti2012", "kitti2015", "crestereo")
+
+
+def open_dataset(args: argparse.Namespace):
+    """The evaluation pairs named by ``--dataset`` (``--root`` for the on-disk sets)."""
+    from . import data
+
+    if args.dataset in ("synthetic", "synthetic-underwater"):
+        h, w = args.size
+        preset = args.preset if args.dataset == "synthetic-underwater" else None
+        if args.dataset == "synthetic-underwater" and preset is None:
+            raise SystemExit("mipnet eval: --dataset synthetic-underwater needs --preset (clear, coastal, turbid, low_light)")
+        return data.SyntheticStereo(args.n, h, w, seed=args.seed, underwater=preset)
+    if not args.root:
+        raise SystemExit(f"mipnet eval: --dataset {args.dataset} needs --root DIR")
+    make = {
+        "sceneflow": lambda: data.SceneFlow(args.root, split="TEST"),
+        "middlebury2014": lambda: data.Middlebury2014(args.root),
+        "middeval3": lambda: data.MiddEval3(args.root, split="training", resolution=args.resolution),
+        "eth3d": lambda: data.ETH3D(args.root, split="training"),
+        "kitti2012": lambda: data.KITTI(args.root, year=2012),
+        "kitti2015": lambda: data.KITTI(args.root, year=2015),
+        "crestereo": lambda: data.CREStereo(args.root),
+    }[args.dataset]
+    return make()
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .evaluation import evaluate_method, format_table, result_row, sgbm_rows
+
+    dataset = open_dataset(args)
+    count = min(len(dataset), args.max_pairs) if args.max_pairs else len(dataset)
+    pairs = lambda: (dataset[i] for i in range(count))  # noqa: E731 - one fresh pass per method
+    methods = set(args.methods.split(","))
+    rows = []
+    if "mipnet" in methods:
+        model = load_model(args.weights)
+        progress = Progress(count, "mipnet")
+
+        def predict(left, right):
+            disp = model(left, right, iters=tuple(args.iters))
+            progress.step("")
+            return disp
+
+        rows.append(result_row("MIPNet" + ("" if args.weights else " (untrained)"), evaluate_method(pairs(), predict),
+                               args.aggregation))
+    if "sgbm" in methods:
+        full, covered = sgbm_rows(pairs(), aggregation=args.aggregation)
+        rows += [{**full, "method": "SGBM (full coverage)"}, {**covered, "method": "SGBM (covered)"}]
+    name = args.dataset + (f" ({args.preset})" if args.dataset == "synthetic-underwater" else "")
+    print(f"{name}: {count} pairs, {args.aggregation} over images; bad-x and d1 in percent, epe/a90/rms in px")
+    print(format_table(rows))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mipnet", description="MIPNet stereo matching on the CPU (Rust engine).")
     p.add_argument("--threads", type=int, default=None, help="kernel threads (default: all cores / MIPNET_NUM_THREADS)")
@@ -140,6 +196,21 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("--weights", help="weights file to describe")
     info.set_defaults(func=cmd_info)
 
+    ev = sub.add_parser("eval", help="metrics of MIPNet and OpenCV SGBM on a dataset")
+    ev.add_argument("--dataset", required=True, choices=DATASETS)
+    ev.add_argument("--root", help="dataset root folder (official layout)")
+    ev.add_argument("--weights", help="weights file (.safetensors written by MIPNet.save)")
+    ev.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
+    ev.add_argument("--methods", default="mipnet,sgbm", help="comma-separated: mipnet, sgbm")
+    ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light"), help="underwater preset")
+    ev.add_argument("--n", type=int, default=50, help="number of generated pairs (synthetic sets)")
+    ev.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"), help="generated pair size")
+    ev.add_argument("--seed", type=int, default=0, help="seed of the generated pairs")
+    ev.add_argument("--resolution", default="H", choices=("F", "H", "Q"), help="MiddEval3 resolution")
+    ev.add_argument("--max-pairs", type=int, default=None, help="evaluate only the first N pairs")
+    ev.add_argument("--aggregation", default="mean", choices=("mean", "pooled"),
+                    help="mean of per-image metrics (ETH3D) or pooled over all pixels (KITTI)")
+    ev.set_defaults(func=cmd_eval)
     return p
 
 

@@ -1,0 +1,36 @@
+"""Stereo datasets, a seeded DataLoader and procedural pairs."""
+
+from .datasets import (
+    ETH3D,
+    KITTI,
+    ConcatDataset,
+    CREStereo,
+    Dataset,
+    FolderPairs,
+    MiddEval3,
+    Middlebury2014,
+    RepeatDataset,
+    SceneFlow,
+    StereoDataset,
+)
+from .loader import DataLoader, default_collate
+from .synthetic import SyntheticStereo, make_pair, synthetic_underwater_pairs
+
+__all__ = [
+    "Dataset",
+    "ConcatDataset",
+    "RepeatDataset",
+    "StereoDataset",
+    "SceneFlow",
+    "Middlebury2014",
+    "MiddEval3",
+    "ETH3D",
+    "KITTI",
+    "CREStereo",
+    "FolderPairs",
+    "DataLoader",
+    "default_collate",
+    "SyntheticStereo",
+    "make_pair",
+    "synthetic_underwater_pairs",
+]

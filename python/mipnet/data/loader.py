@@ -1,0 +1,185 @@
+"""A small, seeded, PyTorch-like DataLoader over numpy samples, with optional worker processes.
+
+Determinism: the shuffle order of epoch ``e`` comes from ``(seed, e)``, and the ``transform`` of
+the sample at position ``p`` of that order gets its own generator seeded from ``(seed, e, p)``.
+The batches are therefore identical with any ``num_workers``. Workers also seed Python's
+``random`` and numpy's global state from ``(seed, e, worker_id)`` for code that uses them.
+"""
+
+from __future__ import annotations
+
+import collections
+import multiprocessing
+import random
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from numbers import Number
+
+import numpy as np
+
+from ..errors import ShapeError
+
+__all__ = ["DataLoader", "default_collate"]
+
+
+def default_collate(samples: Sequence[dict]) -> dict:
+    """Stack a list of sample dicts into a batch dict.
+
+    Arrays are stacked into a new leading axis, numbers become 1-D arrays, everything else
+    (strings, ``meta`` dicts, None) is kept as a list.
+
+    Shapes
+    ------
+    each array value: (...) -> (B, ...).
+
+    Raises
+    ------
+    ShapeError
+        Arrays under one key differ in shape (crop or resize in ``transform``, or use
+        ``batch_size=1``).
+    """
+    batch = {}
+    for key in samples[0]:
+        values = [sample[key] for sample in samples]
+        if isinstance(values[0], np.ndarray):
+            shapes = {v.shape for v in values}
+            if len(shapes) > 1:
+                raise ShapeError(
+                    f"cannot batch {key!r}: shapes {sorted(shapes)} differ; crop in transform or use batch_size=1"
+                )
+            batch[key] = np.stack(values)
+        elif isinstance(values[0], Number) and not isinstance(values[0], bool):
+            batch[key] = np.asarray(values)
+        else:
+            batch[key] = values
+    return batch
+
+
+def _seed_state(*entropy: int) -> int:
+    return int(np.random.SeedSequence(list(entropy)).generate_state(1)[0])
+
+
+# Worker-process state, set by the pool initializer (inherited by fork, pickled by spawn).
+_WORKER: dict = {}
+
+
+def _init_worker(loader: DataLoader, epoch: int, counter) -> None:
+    with counter.get_lock():
+        worker_id = counter.value
+        counter.value += 1
+    seed = _seed_state(loader.seed, epoch, worker_id)
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    _WORKER.update(loader=loader, epoch=epoch, worker_id=worker_id)
+
+
+def _load_batch_in_worker(positions_and_indices):
+    return _WORKER["loader"]._load_batch(_WORKER["epoch"], positions_and_indices)
+
+
+class DataLoader:
+    """Iterate a map-style dataset in (optionally shuffled) batches of stacked numpy arrays.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Anything with ``__len__`` and ``__getitem__`` returning dicts.
+    batch_size : int
+        Samples per batch.
+    shuffle : bool
+        Reshuffle every epoch (the epoch counter advances with each ``iter()``; see
+        :meth:`set_epoch`).
+    drop_last : bool
+        Drop the last incomplete batch.
+    num_workers : int
+        0: load in this process; >0: that many worker processes ("fork" start method on Linux).
+    seed : int
+        Seed of shuffling and of the per-sample transform generators.
+    collate_fn : callable, optional
+        ``list of samples -> batch``; default :func:`default_collate`.
+    transform : callable, optional
+        ``transform(sample, rng) -> sample``, applied per sample with a
+        ``numpy.random.Generator`` that depends only on (seed, epoch, position).
+
+    Shapes
+    ------
+    batch arrays: (B, ...) with B = batch_size (smaller for a last partial batch).
+    """
+
+    def __init__(self, dataset, batch_size: int = 1, shuffle: bool = False, drop_last: bool = False,
+                 num_workers: int = 0, seed: int = 0, collate_fn: Callable | None = None,
+                 transform: Callable | None = None):
+        if batch_size < 1:
+            raise ValueError(f"DataLoader: batch_size must be >= 1, got {batch_size}")
+        if num_workers < 0:
+            raise ValueError(f"DataLoader: num_workers must be >= 0, got {num_workers}")
+        self.dataset = dataset
+        self.batch_size = batch_size
+        self.shuffle = shuffle
+        self.drop_last = drop_last
+        self.num_workers = num_workers
+        self.seed = seed
+        self.collate_fn = collate_fn or default_collate
+        self.transform = transform
+        self.epoch = 0
+
+    def __len__(self) -> int:
+        full, rest = divmod(len(self.dataset), self.batch_size)
+        return full + (1 if rest and not self.drop_last else 0)
+
+    def set_epoch(self, epoch: int) -> None:
+        """Set the epoch whose order the next ``iter()`` uses (it then advances by one)."""
+        self.epoch = int(epoch)
+
+    def _batches(self, epoch: int) -> list[list[tuple[int, int]]]:
+        """(position, dataset index) pairs of every batch of ``epoch``."""
+        count = len(self.dataset)
+        if self.shuffle:
+            order = np.random.default_rng(_seed_state(self.seed, epoch)).permutation(count)
+        else:
+            order = np.arange(count)
+        pairs = list(enumerate(order.tolist()))
+        size = self.batch_size
+        return [pairs[start:start + size] for start in range(0, len(self) * size, size)]
+
+    def _load_batch(self, epoch: int, positions_and_indices: list[tuple[int, int]]):
+        samples = []
+        for position, index in positions_and_indices:
+            sample = self.dataset[index]
+            if self.transform is not None:
+                rng = np.random.default_rng(_seed_state(self.seed, epoch, position))
+                sample = self.transform(sample, rng)
+            samples.append(sample)
+        return self.collate_fn(samples)
+
+    def __iter__(self) -> Iterator:
+        epoch = self.epoch
+        self.epoch += 1
+        batches = self._batches(epoch)
+        if self.num_workers == 0:
+            return (self._load_batch(epoch, batch) for batch in batches)
+        return self._iter_workers(epoch, batches)
+
+    def _iter_workers(self, epoch: int, batches: list) -> Iterator:
+        method = "fork" if sys.platform.startswith("linux") else "spawn"
+        context = multiprocessing.get_context(method)
+        counter = context.Value("i", 0)
+        pool = context.Pool(self.num_workers, initializer=_init_worker, initargs=(self, epoch, counter))
+        try:
+            pending: collections.deque = collections.deque()
+            upcoming = iter(batches)
+            # Keep at most two batches per worker in flight; results come back in submission order.
+            for batch in upcoming:
+                pending.append(pool.apply_async(_load_batch_in_worker, (batch,)))
+                if len(pending) >= 2 * self.num_workers:
+                    break
+            while pending:
+                result = pending.popleft().get()
+                following = next(upcoming, None)
+                if following is not None:
+                    pending.append(pool.apply_async(_load_batch_in_worker, (following,)))
+                yield result
+            pool.close()
+        finally:
+            pool.terminate()
+            pool.join()

@@ -1,0 +1,429 @@
+"""Synthetic underwater degradation of an in-air stereo pair (photometric only).
+
+Model (Akkaynak-Treibitz revised image formation, per colour channel c, linear RGB, range z in m):
+
+    I_c = gain * [ blur_z( J_c * E_c * exp(-beta^D_c z) ) + B_c * (1 - exp(-beta^B_c z)) ] + noise
+
+* ``beta^D = K_d(water_type) + scattering`` with Jerlov's diffuse attenuation K_d (R = 650 nm,
+  G = 550 nm, B = 450 nm) plus a spectrally flat scattering term; ``beta^B`` is its own
+  per-channel coefficient;
+* ``E_c = exp(-K_d,c * d_v) + artificial light``: sunlight dimmed over the vertical depth d_v of
+  the scene point (camera depth plus the point's height below the camera), plus an optional spot
+  light at the camera (inverse-square falloff, attenuated on its way out);
+* ``B_c``: veiling light, dimmed by ``exp(-K_d,c * depth)``;
+* ``blur_z``: forward scatter, a Gaussian blur whose sigma grows linearly with range (a per-pixel
+  blend of a few blur levels);
+* auto-exposure from the left view's luminance (shared by both cameras), then ``gain`` (low light), marine
+  snow (particles at 0.3-3 m drawn at consistent positions in both views), and Poisson-Gaussian
+  sensor noise drawn independently per view.
+
+Range comes from the left disparity with a ZED-like default calibration (``fx = 700 px`` at
+1280 px width, scaled with the image width; baseline 0.12 m), clipped to ``[z_min, z_max]``;
+pixels with invalid disparity (non-finite or <= 0) are placed at ``z_max``. The right view's range
+is the left range forward-warped with the disparity, holes filled with the farther neighbour
+(occluded background). The disparity itself is not changed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["degrade", "WaterParams", "PRESETS", "JERLOV_KD", "srgb_to_linear", "linear_to_srgb"]
+
+# Jerlov diffuse attenuation K_d (1/m) at 650 nm (R), 550 nm (G), 450 nm (B).
+JERLOV_KD: dict[str, tuple[float, float, float]] = {
+    "I": (0.36, 0.063, 0.019),
+    "IA": (0.37, 0.067, 0.026),
+    "IB": (0.376, 0.072, 0.036),
+    "II": (0.40, 0.089, 0.068),
+    "III": (0.445, 0.12, 0.136),
+    "1C": (0.45, 0.12, 0.25),
+    "3C": (0.46, 0.19, 0.39),
+    "5C": (0.54, 0.30, 0.56),
+    "7C": (0.63, 0.46, 0.89),
+    "9C": (0.76, 0.63, 1.6),
+}
+
+_REFERENCE_WIDTH = 1280.0
+_REFERENCE_FX = 700.0
+_EXPOSURE_MEAN = 0.2  # auto-exposure: mean linear luminance target (sRGB ~124) ...
+_EXPOSURE_HIGHLIGHT = 0.9  # ... unless that pushes the 99th percentile above this
+_LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709 weights of linear RGB
+_SPOT_REFERENCE_RANGE = 0.5
+_SNOW_RANGE = (0.3, 3.0)
+
+
+@dataclass(frozen=True)
+class WaterParams:
+    """Parameters of :func:`degrade` (see the module docstring for the model).
+
+    Attributes
+    ----------
+    water_type : str
+        Jerlov class (``I, IA, IB, II, III, 1C, 3C, 5C, 7C, 9C``).
+    scattering : float
+        Spectrally flat extra attenuation of the direct signal (1/m).
+    backscatter_coef : tuple of 3 float
+        beta^B (R, G, B) in 1/m.
+    veiling_light : tuple of 3 float
+        B_inf (R, G, B), linear, at the surface.
+    backscatter_strength : float
+        Multiplier on the backscatter term.
+    forward_scatter : float
+        Blur sigma in px per metre of range, for a 1280 px wide image (scaled with width).
+    depth : float
+        Camera depth below the surface (m).
+    gain : float
+        Exposure gain after auto-exposure (< 1: low light).
+    full_well : float
+        Photo-electrons at full scale (Poisson noise; smaller = noisier).
+    read_noise : float
+        Gaussian read-noise std as a fraction of full scale.
+    artificial_light : float
+        Strength of a spot light at the camera, relative to surface daylight (0: none).
+    light_cone : float
+        Spot radius (1/e) as a fraction of the image diagonal.
+    marine_snow : float
+        Particles per megapixel.
+    snow_brightness : float
+        Peak brightness of a particle (fraction of full scale, before ``gain``).
+    fx : float or None
+        Focal length in px; None: 700 px scaled by width / 1280.
+    baseline : float
+        Stereo baseline (m).
+    z_min, z_max : float
+        Range clip (m).
+    """
+
+    water_type: str = "3C"
+    scattering: float = 0.15
+    backscatter_coef: tuple = (0.25, 0.3, 0.3)
+    veiling_light: tuple = (0.10, 0.45, 0.35)
+    backscatter_strength: float = 1.0
+    forward_scatter: float = 0.4
+    depth: float = 5.0
+    gain: float = 1.0
+    full_well: float = 1000.0
+    read_noise: float = 0.003
+    artificial_light: float = 0.0
+    light_cone: float = 0.5
+    marine_snow: float = 60.0
+    snow_brightness: float = 0.6
+    fx: float | None = None
+    baseline: float = 0.12
+    z_min: float = 0.3
+    z_max: float = 20.0
+
+    def __post_init__(self):
+        if self.water_type not in JERLOV_KD:
+            raise ValueError(f"unknown Jerlov water type {self.water_type!r}; expected one of {list(JERLOV_KD)}")
+        if not 0 < self.z_min < self.z_max:
+            raise ValueError(f"need 0 < z_min < z_max, got {self.z_min}, {self.z_max}")
+        if self.full_well <= 0 or self.read_noise < 0 or self.gain <= 0:
+            raise ValueError("full_well and gain must be positive, read_noise non-negative")
+
+
+PRESETS: dict[str, WaterParams] = {
+    "clear": WaterParams(
+        water_type="I", scattering=0.03, backscatter_coef=(0.05, 0.06, 0.08),
+        veiling_light=(0.05, 0.30, 0.55), forward_scatter=0.15, depth=3.0,
+        full_well=2000.0, read_noise=0.002, marine_snow=10.0,
+    ),
+    "coastal": WaterParams(),
+    "turbid": WaterParams(
+        water_type="9C", scattering=0.6, backscatter_coef=(0.9, 0.9, 0.8),
+        veiling_light=(0.30, 0.45, 0.30), forward_scatter=1.2, depth=2.0,
+        full_well=800.0, read_noise=0.004, marine_snow=250.0,
+    ),
+    "low_light": WaterParams(
+        water_type="5C", scattering=0.2, backscatter_coef=(0.3, 0.35, 0.3),
+        veiling_light=(0.08, 0.35, 0.30), forward_scatter=0.5, depth=20.0, gain=0.15,
+        full_well=300.0, read_noise=0.01, artificial_light=1.5, marine_snow=120.0, snow_brightness=1.0,
+    ),
+}
+
+
+def _resolve_params(preset, overrides: Mapping) -> WaterParams:
+    if isinstance(preset, WaterParams):
+        base = preset
+    elif preset in PRESETS:
+        base = PRESETS[preset]
+    else:
+        raise ValueError(f"unknown underwater preset {preset!r}; expected one of {list(PRESETS)} or a WaterParams")
+    known = {f.name for f in dataclasses.fields(WaterParams)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise TypeError(f"unknown water parameter(s) {unknown}; valid: {sorted(known)}")
+    return dataclasses.replace(base, **overrides)
+
+
+# --------------------------------------------------------------------------- colour transfer
+
+
+def srgb_to_linear(image) -> np.ndarray:
+    """sRGB uint8 -> linear float32 in [0, 1] (IEC 61966-2-1).
+
+    Shapes
+    ------
+    image: any; return: same shape.
+    """
+    s = np.asarray(image, dtype=np.float32) / 255.0
+    return np.where(s <= 0.04045, s / 12.92, ((s + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(linear) -> np.ndarray:
+    """Linear float (clipped to [0, 1]) -> sRGB uint8.
+
+    Shapes
+    ------
+    linear: any; return: same shape.
+    """
+    x = np.clip(np.asarray(linear, dtype=np.float32), 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.rint(s * 255.0).astype(np.uint8)
+
+
+# ---------------------------------------------------------------------------------- geometry
+
+
+def _depth_from_disparity(disp: np.ndarray, fx: float, params: WaterParams) -> np.ndarray:
+    """Depth (m) per pixel; invalid disparity -> z_max."""
+    d = np.asarray(disp, dtype=np.float64)
+    usable = np.isfinite(d) & (d > 0)
+    depth = np.full(d.shape, params.z_max)
+    np.divide(fx * params.baseline, d, out=depth, where=usable)
+    return np.clip(depth, params.z_min, params.z_max)
+
+
+def _warp_depth_to_right(depth: np.ndarray, disp: np.ndarray) -> np.ndarray:
+    """Forward-warp left depth into the right view (nearest wins), holes take the farther neighbour.
+
+    Each left pixel lands on the two right pixels around ``x - d``, so a surface stretched by up
+    to 2x in the right view leaves no gaps for the background to show through.
+    """
+    height, width = depth.shape
+    d = np.where(np.isfinite(disp) & (disp > 0), disp, 0.0)
+    rows, cols = np.indices((height, width))
+    right = np.full(height * width, np.inf)
+    floor = np.floor(cols - d).astype(np.int64)
+    for xr in (floor, floor + 1):
+        inside = (xr >= 0) & (xr < width)
+        np.minimum.at(right, (rows * width + xr)[inside], depth[inside])
+    right = right.reshape(height, width)
+    return _fill_holes_far(right, depth.max())
+
+
+def _fill_holes_far(values: np.ndarray, default: float) -> np.ndarray:
+    """Replace inf entries by the larger of the nearest finite values to their left and right."""
+    height, width = values.shape
+    have = np.isfinite(values)
+    columns = np.arange(width)[None, :]
+    # Index of the nearest finite entry at or before / at or after each column (-1 / width: none).
+    before = np.maximum.accumulate(np.where(have, columns, -1), axis=1)
+    after = np.minimum.accumulate(np.where(have, columns, width)[:, ::-1], axis=1)[:, ::-1]
+    from_before = np.where(before >= 0, np.take_along_axis(values, np.clip(before, 0, width - 1), 1), -np.inf)
+    from_after = np.where(after < width, np.take_along_axis(values, np.clip(after, 0, width - 1), 1), -np.inf)
+    filled = np.maximum(from_before, from_after)
+    filled = np.where(np.isfinite(filled), filled, default)
+    return np.where(have, values, filled)
+
+
+def _view_geometry(depth: np.ndarray, fx: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Line-of-sight range, height below the camera (m, down positive) and normalised radius."""
+    height, width = depth.shape
+    v, u = np.indices((height, width), dtype=np.float64)
+    du = (u - (width - 1) / 2) / fx
+    dv = (v - (height - 1) / 2) / fx
+    ray_length = np.sqrt(1.0 + du**2 + dv**2)
+    radius = np.hypot(u - (width - 1) / 2, v - (height - 1) / 2) / np.hypot(width, height)
+    return depth * ray_length, depth * dv, radius
+
+
+# ----------------------------------------------------------------------------------- blurring
+
+
+def _gaussian_kernel(sigma: float) -> np.ndarray:
+    radius = max(1, int(np.ceil(3.0 * sigma)))
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    kernel = np.exp(-0.5 * (x / sigma) ** 2)
+    return (kernel / kernel.sum()).astype(np.float32)
+
+
+def _convolve_axis(image: np.ndarray, kernel: np.ndarray, axis: int) -> np.ndarray:
+    radius = len(kernel) // 2
+    pad = [(0, 0)] * image.ndim
+    pad[axis] = (radius, radius)
+    padded = np.pad(image, pad, mode="reflect" if image.shape[axis] > radius else "edge")
+    out = np.zeros_like(image)
+    length = image.shape[axis]
+    for k, weight in enumerate(kernel):
+        window = [slice(None)] * image.ndim
+        window[axis] = slice(k, k + length)
+        out += weight * padded[tuple(window)]
+    return out
+
+
+def _gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """Separable Gaussian blur (reflect borders) over the first two axes.
+
+    Shapes
+    ------
+    image: (H, W) or (H, W, C); return: same shape, float32.
+    """
+    image = np.asarray(image, dtype=np.float32)
+    if sigma <= 0:
+        return image.copy()
+    kernel = _gaussian_kernel(sigma)
+    return _convolve_axis(_convolve_axis(image, kernel, 0), kernel, 1)
+
+
+def _range_blur(image: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Blur whose sigma varies per pixel: linear blend between the two nearest of a few blur levels."""
+    top = float(sigma.max())
+    if top <= 0:
+        return image
+    levels = [0.0]
+    while levels[-1] < top:
+        levels.append(max(1.0, 2.0 * levels[-1]))
+    blurred = [image]
+    for previous, current in zip(levels[:-1], levels[1:]):
+        # Blurring by sqrt(current^2 - previous^2) turns level sigma `previous` into `current`.
+        blurred.append(_gaussian_blur(blurred[-1], float(np.sqrt(current**2 - previous**2))))
+    out = np.zeros_like(image)
+    for lower, upper, low_img, high_img in zip(levels[:-1], levels[1:], blurred[:-1], blurred[1:]):
+        t = np.clip((sigma - lower) / (upper - lower), 0.0, 1.0)
+        inside = (sigma >= lower) & ((sigma < upper) | (upper == levels[-1]))
+        mix = (1.0 - t)[..., None] * low_img + t[..., None] * high_img
+        out = np.where(inside[..., None], mix, out)
+    return out
+
+
+# ------------------------------------------------------------------------- image formation
+
+
+def _radiance(clean_linear: np.ndarray, depth: np.ndarray, fx: float, params: WaterParams) -> np.ndarray:
+    """Noise-free underwater radiance of one view (linear, before exposure)."""
+    k_d = np.asarray(JERLOV_KD[params.water_type], dtype=np.float64)
+    beta_d = k_d + params.scattering
+    beta_b = np.asarray(params.backscatter_coef, dtype=np.float64)
+    z, below_camera, radius = _view_geometry(depth, fx)
+    z3 = z[..., None]
+    vertical = np.maximum(params.depth + below_camera, 0.0)[..., None]
+    illumination = np.exp(-k_d * vertical)
+    if params.artificial_light > 0:
+        spot = np.exp(-((radius / params.light_cone) ** 2))[..., None]
+        falloff = np.minimum(1.0, (_SPOT_REFERENCE_RANGE / z3) ** 2)
+        illumination = illumination + params.artificial_light * spot * falloff * np.exp(-beta_d * z3)
+    direct = (clean_linear * illumination * np.exp(-beta_d * z3)).astype(np.float32)
+    width = depth.shape[1]
+    sigma = params.forward_scatter * z * width / _REFERENCE_WIDTH
+    direct = _range_blur(direct, sigma)
+    veil = np.asarray(params.veiling_light) * np.exp(-k_d * params.depth) * params.backscatter_strength
+    backscatter = veil * (1.0 - np.exp(-beta_b * z3))
+    return (direct + backscatter).astype(np.float32)
+
+
+def _auto_exposure(radiance: np.ndarray) -> float:
+    """Gain that brings the mean luminance to a mid-grey without clipping the highlights."""
+    luminance = radiance @ _LUMINANCE
+    mean = max(float(luminance.mean()), 1e-6)
+    highlight = max(float(np.percentile(luminance, 99.0)), 1e-6)
+    return min(_EXPOSURE_MEAN / mean, _EXPOSURE_HIGHLIGHT / highlight)
+
+
+def _snow_layers(rng: np.random.Generator, shape: tuple, fx: float, params: WaterParams):
+    """Marine-snow particles: (x_left, y, disparity, range, brightness, sigma) arrays."""
+    height, width = shape
+    count = rng.poisson(params.marine_snow * height * width / 1e6)
+    x = rng.uniform(0, width, count)
+    y = rng.uniform(0, height, count)
+    z = rng.uniform(*_SNOW_RANGE, count)
+    brightness = params.snow_brightness * rng.uniform(0.3, 1.0, count)
+    sigma = rng.uniform(0.4, 1.2, count) * max(1.0, width / 640)
+    return x, y, fx * params.baseline / z, z, brightness, sigma
+
+
+def _render_snow(image: np.ndarray, particles, x_offset: np.ndarray, scene_range: np.ndarray) -> np.ndarray:
+    """Add the particles that lie in front of the scene as Gaussian blobs (two size classes)."""
+    x, y, _, z, brightness, sigma = particles
+    height, width = scene_range.shape
+    x = x - x_offset
+    col = np.rint(x).astype(np.int64)
+    row = np.rint(y).astype(np.int64)
+    inside = (col >= 0) & (col < width) & (row >= 0) & (row < height)
+    visible = np.zeros(x.shape, dtype=bool)
+    visible[inside] = z[inside] < scene_range[row[inside], col[inside]]
+    out = image.copy()
+    small = sigma < np.median(sigma) if sigma.size else np.zeros(0, dtype=bool)
+    for group in (visible & small, visible & ~small):
+        if not group.any():
+            continue
+        group_sigma = float(sigma[group].mean())
+        impulses = np.zeros((height, width), dtype=np.float32)
+        # A blob of peak b needs impulse weight b * 2 pi sigma^2 before the Gaussian blur.
+        np.add.at(impulses, (row[group], col[group]), brightness[group] * 2 * np.pi * group_sigma**2)
+        out += _gaussian_blur(impulses, group_sigma)[..., None]
+    return out
+
+
+def _sensor(rng: np.random.Generator, linear: np.ndarray, params: WaterParams) -> np.ndarray:
+    electrons = rng.poisson(np.clip(linear, 0.0, None) * params.full_well)
+    noisy = electrons / params.full_well + rng.normal(0.0, params.read_noise, linear.shape)
+    return linear_to_srgb(noisy)
+
+
+def degrade(left, right, disparity, preset="coastal", seed: int = 0, **params):
+    """Make an in-air stereo pair look underwater (same water for both views, own sensor noise each).
+
+    Parameters
+    ----------
+    left, right : array_like of uint8
+        sRGB images of a rectified pair.
+    disparity : array_like
+        Left-view disparity in px (non-finite or <= 0: unknown, treated as far).
+    preset : str or WaterParams
+        ``"clear"`` (Jerlov I), ``"coastal"`` (3C), ``"turbid"`` (9C, strong backscatter and blur)
+        or ``"low_light"`` (dim, strong noise, artificial light); or a :class:`WaterParams`.
+    seed : int
+        Seed of marine snow and sensor noise; the output is a deterministic function of it.
+    **params
+        Overrides of :class:`WaterParams` fields (unknown names raise ``TypeError``).
+
+    Returns
+    -------
+    left, right : numpy.ndarray
+        Degraded uint8 sRGB images. The disparity is unchanged by construction.
+
+    Shapes
+    ------
+    left, right: (H, W, 3); disparity: (H, W); returns: (H, W, 3) each.
+    """
+    water = _resolve_params(preset, params)
+    left = np.asarray(left)
+    right = np.asarray(right)
+    disp = np.asarray(disparity, dtype=np.float64)
+    if left.shape != right.shape or left.ndim != 3 or left.shape[2] != 3 or disp.shape != left.shape[:2]:
+        raise ValueError(
+            f"degrade: expected (H, W, 3) images and an (H, W) disparity, got {left.shape}, {right.shape}, {disp.shape}"
+        )
+    width = left.shape[1]
+    fx = water.fx if water.fx is not None else _REFERENCE_FX * width / _REFERENCE_WIDTH
+    snow_rng, left_rng, right_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+    depth_left = _depth_from_disparity(disp, fx, water)
+    depth_right = _warp_depth_to_right(depth_left, disp)
+    radiance_left = _radiance(srgb_to_linear(left), depth_left, fx, water)
+    radiance_right = _radiance(srgb_to_linear(right), depth_right, fx, water)
+    exposure = _auto_exposure(radiance_left)
+    particles = _snow_layers(snow_rng, disp.shape, fx, water)
+    outputs = []
+    for rng, radiance, depth, shift in (
+        (left_rng, radiance_left, depth_left, np.zeros_like(particles[2])),
+        (right_rng, radiance_right, depth_right, particles[2]),
+    ):
+        exposed = _render_snow(radiance * exposure, particles, shift, _view_geometry(depth, fx)[0])
+        outputs.append(_sensor(rng, exposed * water.gain, water))
+    return outputs[0], outputs[1]
