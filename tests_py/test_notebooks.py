@@ -1,0 +1,32 @@
+"""Every notebook runs top to bottom on the public API (nbclient; outputs are not committed)."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
+
+
+def _nb_modules():
+    if os.environ.get("CI"):
+        import nbclient
+        import nbformat
+        return nbclient, nbformat
+    return pytest.importorskip("nbclient"), pytest.importorskip("nbformat")
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+def test_notebook_runs(path, tmp_path):
+    nbclient, nbformat = _nb_modules()
+    nb = nbformat.read(path, as_version=4)
+    nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.output_type == "error"]
+    assert not errors
+
+
+def test_notebooks_are_committed_without_outputs():
+    nbformat = _nb_modules()[1]
+    for path in NOTEBOOKS:
+        nb = nbformat.read(path, as_version=4)
+        assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), path.name
