@@ -1,1 +1,496 @@
-//! (family under construction)
+//! Convolution: 2-D cross-correlation with any kernel size, any stride, per-axis zero padding and an
+//! optional bias, computed as tiled im2col + GEMM.
+//!
+//! | op | forward | backward (grads to) |
+//! |---|---|---|
+//! | conv2d | `conv2d_fwd`: Y[n] = W · cols(x[n]) + b | `conv2d_bwd`: dX = col2im(Wᵀ · dY), dW = Σ dY · colsᵀ, db = Σ dY |
+//!
+//! W is the matrix [Cout, K] with K = Cin·kh·kw, and cols(x[n]) the matrix [K, Ho·Wo] whose column p
+//! holds the receptive field of output pixel p. It is never built whole (a 3x3 352->128 conv at
+//! 272x480 would need 1.6 GB): each task builds the columns of one range of output pixels (a tile)
+//! in its thread's scratch buffer of at most [`SCRATCH_BYTES`]. A 1x1, stride-1, unpadded conv uses
+//! x[n] itself as cols. The work is split so that every result is deterministic and independent of
+//! the number of threads:
+//! - forward: tasks (image, pixel tile), each writing Y[n][:, tile] = W · cols(tile);
+//! - dX: tasks (image, input-channel chunk), each owning dX[n, chunk] and running over the tiles in
+//!   order: dcols = W[:, chunk]ᵀ · dY[n][:, tile], scattered back by col2im;
+//! - dW: the (image, tile) list is cut into at most [`DW_GROUPS`] contiguous groups fixed by the
+//!   shapes; each group accumulates its own partial Σ dY·colsᵀ and the partials are summed in order;
+//! - db: per output channel, Σ over images and pixels in order.
+
+use crate::gemm::gemm;
+use crate::tensor::{check_nonempty, fixed};
+use crate::{Error, Float, Result};
+use ndarray::{s, Array1, Array2, Array3, Array4, ArrayView, ArrayView2, ArrayViewD, ArrayViewMut2, Axis, CowArray, Dimension, Ix1, Ix4};
+use rayon::prelude::*;
+use std::any::Any;
+use std::cell::RefCell;
+use std::ops::Range;
+
+const OP: &str = "conv2d";
+/// Upper bound of one thread's im2col / col2im buffer.
+const SCRATCH_BYTES: usize = 4 << 20;
+/// Fewest output pixels in a tile (below this the GEMM's packing overhead dominates).
+const MIN_TILE: usize = 64;
+/// Tiles are a multiple of the GEMM micro-kernel's 16-column panel.
+const TILE_ALIGN: usize = 16;
+/// Most partial dW sums (the parallelism of the weight gradient).
+const DW_GROUPS: usize = 8;
+/// Rows of dcols (channels · taps) one dX task handles at most, unless more tasks are wanted.
+const CHUNK_ROWS: usize = 256;
+
+/// Geometry of a convolution: stride and zero padding per axis (height, width).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Conv2dCfg {
+    pub stride: [usize; 2],
+    pub padding: [usize; 2],
+}
+
+impl Default for Conv2dCfg {
+    fn default() -> Self {
+        Conv2dCfg { stride: [1, 1], padding: [0, 0] }
+    }
+}
+
+impl Conv2dCfg {
+    /// A config from (stride_h, stride_w) and (pad_h, pad_w).
+    pub fn new(stride: [usize; 2], padding: [usize; 2]) -> Self {
+        Conv2dCfg { stride, padding }
+    }
+
+    /// The output size (Ho, Wo) for an input of H x W and a kernel of kh x kw.
+    ///
+    /// Fails for a zero stride, a padding so large that sizes overflow, and a kernel larger than the
+    /// padded input.
+    pub fn out_hw(&self, h: usize, w: usize, kh: usize, kw: usize) -> Result<(usize, usize)> {
+        let [sh, sw] = self.stride;
+        let [ph, pw] = self.padding;
+        if sh == 0 || sw == 0 {
+            return Err(Error::arg(OP, format!("stride must be at least 1 on both axes, got {:?}", self.stride)));
+        }
+        // padded size = size + 2·pad
+        let padded = |size: usize, pad: usize| pad.checked_mul(2).and_then(|p| p.checked_add(size));
+        let (Some(hp), Some(wp)) = (padded(h, ph), padded(w, pw)) else {
+            return Err(Error::arg(OP, format!("padding {:?} is too large", self.padding)));
+        };
+        if kh == 0 || kw == 0 || kh > hp || kw > wp {
+            return Err(Error::shape(OP, "the kernel must be non-empty and fit in the padded input",
+                                    &[("padded input", &[hp, wp]), ("kernel", &[kh, kw])]));
+        }
+        // o = (padded − k) / s + 1
+        Ok(((hp - kh) / sh + 1, (wp - kw) / sw + 1))
+    }
+}
+
+/// Which gradients `conv2d_bwd` computes (the others are skipped and returned as None).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Conv2dNeed {
+    pub x: bool,
+    pub w: bool,
+    pub b: bool,
+}
+
+impl Conv2dNeed {
+    /// All three gradients.
+    pub const ALL: Conv2dNeed = Conv2dNeed { x: true, w: true, b: true };
+}
+
+/// The gradients of `conv2d_fwd` w.r.t. input, weight and bias (None where not requested).
+#[derive(Debug)]
+pub struct Conv2dGrads<F> {
+    pub x: Option<Array4<F>>,
+    pub w: Option<Array4<F>>,
+    pub b: Option<Array1<F>>,
+}
+
+/// All sizes of one call, validated.
+#[derive(Clone, Copy, Debug)]
+struct Geom {
+    n: usize,
+    cin: usize,
+    h: usize,
+    w: usize,
+    cout: usize,
+    kh: usize,
+    kw: usize,
+    ho: usize,
+    wo: usize,
+    stride: [usize; 2],
+    pad: [usize; 2],
+}
+
+impl Geom {
+    fn new(x: &[usize], w: &[usize], b: Option<&[usize]>, cfg: &Conv2dCfg) -> Result<Geom> {
+        let shapes: Vec<(&'static str, &[usize])> =
+            [("input", x), ("weight", w)].into_iter().chain(b.map(|b| ("bias", b))).collect();
+        check_nonempty(OP, &shapes)?;
+        let ([n, cin, h, wd], [cout, wcin, kh, kw]) = (to4(x), to4(w));
+        if cin != wcin {
+            return Err(Error::shape(OP, "input channels (input.shape[1]) must equal weight.shape[1]", &shapes));
+        }
+        if let Some(b) = b {
+            if b != [cout] {
+                return Err(Error::shape(OP, "bias must have weight.shape[0] elements", &shapes));
+            }
+        }
+        let (ho, wo) = cfg.out_hw(h, wd, kh, kw).map_err(|e| match e {
+            Error::Shape { msg, .. } => Error::shape(OP, format!("{msg} (padding {:?})", cfg.padding), &shapes),
+            other => other,
+        })?;
+        Ok(Geom { n, cin, h, w: wd, cout, kh, kw, ho, wo, stride: cfg.stride, pad: cfg.padding })
+    }
+    /// Rows of cols: K = Cin·kh·kw.
+    fn k(&self) -> usize {
+        self.cin * self.kh * self.kw
+    }
+    /// Output pixels per image.
+    fn pix(&self) -> usize {
+        self.ho * self.wo
+    }
+    /// Elements of one input image.
+    fn img(&self) -> usize {
+        self.cin * self.h * self.w
+    }
+    /// 1x1, stride 1, no padding: cols(x[n]) is x[n] seen as [Cin, H·W].
+    fn pointwise(&self) -> bool {
+        self.kh == 1 && self.kw == 1 && self.stride == [1, 1] && self.pad == [0, 0]
+    }
+}
+
+/// A rank-4 shape as an array (callers checked the rank).
+fn to4(s: &[usize]) -> [usize; 4] {
+    [0, 1, 2, 3].map(|i| s.get(i).copied().unwrap_or(0))
+}
+
+/// An ndarray layout failure, which would be a bug of this file (all buffers are built here).
+fn layout(e: ndarray::ShapeError) -> Error {
+    Error::shape(OP, format!("internal layout error: {e}"), &[])
+}
+
+/// Pixels per tile: at most what fits `rows` x tile in the scratch budget, at least `min_tiles`
+/// tiles per image, never below [`MIN_TILE`] (unless the image is smaller), a multiple of [`TILE_ALIGN`].
+fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize) -> usize {
+    let budget = SCRATCH_BYTES / std::mem::size_of::<F>() / rows.max(1);
+    let split = pix.div_ceil(min_tiles.max(1));
+    budget.min(split).max(MIN_TILE).next_multiple_of(TILE_ALIGN).min(pix).max(1)
+}
+
+/// The tiles of one image: consecutive ranges of `len` output pixels.
+fn tiles(pix: usize, len: usize) -> impl Iterator<Item = Range<usize>> {
+    (0..pix).step_by(len.max(1)).map(move |p| p..(p + len).min(pix))
+}
+
+thread_local! {
+    /// This thread's reusable scratch buffer: a `Vec<F>` behind `dyn Any`, so f32 and f64 share the slot.
+    static SCRATCH: RefCell<Option<Box<dyn Any>>> = const { RefCell::new(None) };
+}
+
+/// Runs `f` on this thread's scratch buffer of `len` elements (contents unspecified). `f` must not
+/// call into rayon (a stolen task would find the buffer borrowed; it would then allocate its own).
+fn with_scratch<F: Float, R>(len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
+    SCRATCH.with(|slot| {
+        let Ok(mut slot) = slot.try_borrow_mut() else {
+            return f(&mut vec![F::zero(); len]);
+        };
+        let mut owned: Box<dyn Any> =
+            slot.take().filter(|b| b.is::<Vec<F>>()).unwrap_or_else(|| Box::new(Vec::<F>::new()));
+        let out = match owned.downcast_mut::<Vec<F>>() {
+            Some(buf) => {
+                if buf.len() < len {
+                    buf.resize(len, F::zero());
+                }
+                f(&mut buf[..len])
+            }
+            None => f(&mut vec![F::zero(); len]),
+        };
+        *slot = Some(owned);
+        out
+    })
+}
+
+/// A run of consecutive output pixels of one output row, for one kernel tap (ki, kj): positions
+/// `j0..j0 + lead + valid + trail` of a cols row. `lead` and `trail` pixels read the zero padding;
+/// the `valid` ones read x[iy, ix0 + t·sw], t = 0..valid. `iy` is None when the whole run reads a
+/// padding row.
+struct Run {
+    j0: usize,
+    lead: usize,
+    valid: usize,
+    trail: usize,
+    iy: Option<usize>,
+    ix0: usize,
+}
+
+/// Calls `f` on every run of the output pixels `tile` for the tap (ki, kj): the one place that maps
+/// output pixels to input positions, shared by im2col and col2im.
+fn for_each_run(g: &Geom, ki: usize, kj: usize, tile: Range<usize>, mut f: impl FnMut(Run)) {
+    let ([sh, sw], [ph, pw]) = (g.stride, g.pad);
+    // ix = ox·sw + kj − pw lies in [0, W) for ox in [lo, hi)
+    let lo = pw.saturating_sub(kj).div_ceil(sw).min(g.wo);
+    let hi = if g.w + pw > kj { ((g.w - 1 + pw - kj) / sw + 1).min(g.wo) } else { 0 }.max(lo);
+    let mut p = tile.start;
+    while p < tile.end {
+        // (oy, ox) = (p / Wo, p % Wo); the run ends at the row's end or the tile's end
+        let (oy, ox) = (p / g.wo, p % g.wo);
+        let end = (oy * g.wo + g.wo).min(tile.end);
+        let ox_end = ox + (end - p);
+        // iy = oy·sh + ki − ph
+        let iy = (oy * sh + ki).checked_sub(ph).filter(|&iy| iy < g.h);
+        let (va, vb) = (ox.max(lo), ox_end.min(hi));
+        let run = match iy {
+            Some(_) if va < vb => Run { j0: p - tile.start, lead: va - ox, valid: vb - va, trail: ox_end - vb, iy, ix0: va * sw + kj - pw },
+            _ => Run { j0: p - tile.start, lead: ox_end - ox, valid: 0, trail: 0, iy: None, ix0: 0 },
+        };
+        f(run);
+        p = end;
+    }
+}
+
+/// cols[(c − c0)·kh·kw + ki·kw + kj, j] = x[c, oy·sh + ki − ph, ox·sw + kj − pw] (0 in the padding)
+/// for the output pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), and c in `chans`.
+fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>, cols: &mut [F]) {
+    let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
+    let mut rows = cols.chunks_exact_mut(len);
+    for c in chans {
+        let xc = &xn[c * plane..(c + 1) * plane];
+        for ki in 0..g.kh {
+            for kj in 0..g.kw {
+                let Some(dst) = rows.next() else { return };
+                for_each_run(g, ki, kj, tile.clone(), |r| {
+                    let d = &mut dst[r.j0..r.j0 + r.lead + r.valid + r.trail];
+                    let (lead, rest) = d.split_at_mut(r.lead);
+                    let (mid, trail) = rest.split_at_mut(r.valid);
+                    lead.fill(F::zero());
+                    trail.fill(F::zero());
+                    if let Some(iy) = r.iy {
+                        // x row iy from column ix0, every sw-th element
+                        let src = &xc[iy * g.w + r.ix0..];
+                        if sw == 1 {
+                            mid.copy_from_slice(&src[..r.valid]);
+                        } else {
+                            mid.iter_mut().zip(src.iter().step_by(sw)).for_each(|(m, &v)| *m = v);
+                        }
+                    }
+                });
+            }
+        }
+    }
+}
+
+/// The adjoint of [`im2col`]: dx[c − c0, iy, ix] += dcols[row(c, ki, kj), j] for every tap that
+/// reads x (padding taps are dropped), in a fixed order (channel, tap, pixel).
+fn col2im<F: Float>(g: &Geom, dcols: &[F], nchans: usize, tile: Range<usize>, dx: &mut [F]) {
+    let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
+    let mut rows = dcols.chunks_exact(len);
+    for dxc in dx.chunks_exact_mut(plane).take(nchans) {
+        for ki in 0..g.kh {
+            for kj in 0..g.kw {
+                let Some(src) = rows.next() else { return };
+                for_each_run(g, ki, kj, tile.clone(), |r| {
+                    if let Some(iy) = r.iy {
+                        let s = &src[r.j0 + r.lead..r.j0 + r.lead + r.valid];
+                        // dx row iy from column ix0, every sw-th element
+                        let d = &mut dxc[iy * g.w + r.ix0..];
+                        if sw == 1 {
+                            d[..r.valid].iter_mut().zip(s).for_each(|(d, &v)| *d += v);
+                        } else {
+                            d.iter_mut().step_by(sw).zip(s).for_each(|(d, &v)| *d += v);
+                        }
+                    }
+                });
+            }
+        }
+    }
+}
+
+/// Calls `f` with cols(x[n]) restricted to the rows of `chans` and the columns of `tile`: a view of
+/// x itself for a pointwise conv, else im2col in this thread's scratch.
+fn with_cols<F: Float, R>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
+                          f: impl FnOnce(ArrayView2<F>) -> R) -> Result<R> {
+    if g.pointwise() {
+        let x2 = ArrayView2::from_shape((g.cin, g.pix()), xn).map_err(layout)?;
+        return Ok(f(x2.slice(s![chans, tile])));
+    }
+    let rows = chans.len() * g.kh * g.kw;
+    with_scratch(rows * tile.len(), |buf: &mut [F]| {
+        im2col(g, xn, chans, tile.clone(), buf);
+        Ok(f(ArrayView2::from_shape((rows, tile.len()), &*buf).map_err(layout)?))
+    })
+}
+
+/// A contiguous standard-layout slice seen as a [rows, cols] matrix.
+fn mat<F>(data: &[F], rows: usize, cols: usize) -> Result<ArrayView2<'_, F>> {
+    ArrayView2::from_shape((rows, cols), data).map_err(layout)
+}
+
+/// The view itself if it is in standard (C) layout, else a standard-layout copy.
+fn standard<F: Float, D: Dimension>(v: ArrayView<'_, F, D>) -> CowArray<'_, F, D> {
+    if v.is_standard_layout() { CowArray::from(v) } else { CowArray::from(v.as_standard_layout().into_owned()) }
+}
+
+/// Validated, standard-layout operands of one call.
+struct Operands<'a, F: Float> {
+    g: Geom,
+    x: CowArray<'a, F, Ix4>,
+    w: CowArray<'a, F, Ix4>,
+}
+
+impl<'a, F: Float> Operands<'a, F> {
+    fn new(x: ArrayViewD<'a, F>, w: ArrayViewD<'a, F>, b: Option<&[usize]>, cfg: &Conv2dCfg) -> Result<Self> {
+        let (x, w) = (fixed::<_, Ix4>(OP, "input", x)?, fixed::<_, Ix4>(OP, "weight", w)?);
+        let g = Geom::new(x.shape(), w.shape(), b, cfg)?;
+        Ok(Operands { g, x: standard(x), w: standard(w) })
+    }
+    fn x(&self) -> Result<&[F]> {
+        self.x.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: input", &[]))
+    }
+    /// W as the matrix [Cout, K].
+    fn wmat(&self) -> Result<ArrayView2<'_, F>> {
+        let ws = self.w.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: weight", &[]))?;
+        mat(ws, self.g.cout, self.g.k())
+    }
+}
+
+/// 2-D convolution (cross-correlation) with zero padding and an optional bias.
+///
+/// # Shapes
+/// x (N, Cin, H, W), w (Cout, Cin, kh, kw), b (Cout) -> y (N, Cout, Ho, Wo) with
+/// Ho = (H + 2·ph − kh) / sh + 1 and Wo = (W + 2·pw − kw) / sw + 1.
+///
+/// # Gradient
+/// y[n, o, i, j] = b[o] + Σ_{c, ki, kj} w[o, c, ki, kj] · x[n, c, i·sh + ki − ph, j·sw + kj − pw]; see `conv2d_bwd`.
+///
+/// Torch: `F.conv2d(x, w, b, stride=cfg.stride, padding=cfg.padding)`.
+pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg) -> Result<Array4<F>> {
+    let b = b.map(|b| fixed::<_, Ix1>(OP, "bias", b)).transpose()?;
+    let ops = Operands::new(x, w, b.as_ref().map(|b| b.shape()), cfg)?;
+    let (g, xs, wm) = (ops.g, ops.x()?, ops.wmat()?);
+    let b = b.as_ref().map(|b| b.to_vec());
+    let tile = tile_len::<F>(g.pix(), g.k(), (4 * rayon::current_num_threads()).div_ceil(g.n));
+    let mut y = Array3::<F>::zeros((g.n, g.cout, g.pix()));
+    y.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut yn)| {
+        let xn = &xs[n * g.img()..(n + 1) * g.img()];
+        yn.axis_chunks_iter_mut(Axis(1), tile).into_par_iter().enumerate().try_for_each(|(t, mut yt)| {
+            let px = t * tile..t * tile + yt.ncols();
+            let beta = match &b {
+                Some(b) => {
+                    yt.outer_iter_mut().zip(b).for_each(|(mut row, &bo)| row.fill(bo));
+                    F::one()
+                }
+                None => F::zero(),
+            };
+            // Y[n][:, tile] = W · cols(tile) (+ b, already in Y)
+            with_cols(&g, xn, 0..g.cin, px, |cols| gemm(F::one(), wm, cols, beta, yt.view_mut()))
+        })
+    })?;
+    y.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout)
+}
+
+/// Gradients of `conv2d_fwd` w.r.t. the input, the weight and the bias (only those in `need`).
+///
+/// # Shapes
+/// x (N, Cin, H, W), w (Cout, Cin, kh, kw), g (N, Cout, Ho, Wo) -> dx like x, dw like w, db (Cout).
+///
+/// # Gradient
+/// dX[n] = col2im(Wᵀ · dY[n]); dW = Σ_n dY[n] · cols(x[n])ᵀ; db[o] = Σ_{n,i,j} dY[n, o, i, j].
+///
+/// Torch: `torch.autograd.grad(F.conv2d(x, w, b, stride, padding), (x, w, b), g)`.
+pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg,
+                            need: Conv2dNeed) -> Result<Conv2dGrads<F>> {
+    let gshape = g.shape().to_vec();
+    let ops = Operands::new(x, w, None, cfg)?;
+    let geo = ops.g;
+    let expect = [geo.n, geo.cout, geo.ho, geo.wo];
+    if gshape != expect {
+        return Err(Error::shape(OP, format!("grad_output must have shape {expect:?}"),
+                                &[("input", ops.x.shape()), ("weight", ops.w.shape()), ("grad_output", &gshape)]));
+    }
+    let dy = g.as_standard_layout();
+    let dys = dy.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: grad_output", &[]))?;
+    let dx = if need.x { Some(input_grad(&geo, ops.wmat()?, dys)?) } else { None };
+    let dw = if need.w { Some(weight_grad(&geo, ops.x()?, dys)?) } else { None };
+    let db = need.b.then(|| bias_grad(&geo, dys));
+    Ok(Conv2dGrads { x: dx, w: dw, b: db })
+}
+
+/// dX, by tasks (image, input-channel chunk) that each own dX[n, chunk].
+fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
+    let taps = g.kh * g.kw;
+    let (plane, out_len) = (g.h * g.w, g.cout * g.pix());
+    // Fewest chunks the row cap allows; more when the threads need more tasks.
+    let min_chunks = g.k().div_ceil(CHUNK_ROWS).min(g.cin);
+    let chunks = min_chunks.max((4 * rayon::current_num_threads()).div_ceil(g.n)).min(g.cin);
+    let cc = g.cin.div_ceil(chunks);
+    // The tile depends on the shapes only (the widest chunk), so the sums do not depend on the threads.
+    let tile = tile_len::<F>(g.pix(), g.cin.div_ceil(min_chunks) * taps, 1);
+    let mut dx = Array3::<F>::zeros((g.n, g.cin, plane));
+    dx.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut dxn)| {
+        let dyn_ = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?;
+        dxn.axis_chunks_iter_mut(Axis(0), cc).into_par_iter().enumerate().try_for_each(|(ci, mut dxc)| {
+            let chans = ci * cc..ci * cc + dxc.nrows();
+            let rows = chans.len() * taps;
+            // W[:, chunk]ᵀ: [rows, Cout]
+            let wt = wm.slice(s![.., chans.start * taps..chans.end * taps]).reversed_axes();
+            for px in tiles(g.pix(), tile) {
+                let dyt = dyn_.slice(s![.., px.clone()]);
+                if g.pointwise() {
+                    // dX[n, chunk, tile] = W[:, chunk]ᵀ · dY[n][:, tile]
+                    gemm(F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]));
+                    continue;
+                }
+                let dxs = dxc.as_slice_mut().ok_or_else(|| Error::shape(OP, "internal layout error: dx", &[]))?;
+                with_scratch(rows * px.len(), |buf: &mut [F]| {
+                    let dcols = ArrayViewMut2::from_shape((rows, px.len()), &mut *buf).map_err(layout)?;
+                    // dcols = W[:, chunk]ᵀ · dY[n][:, tile]
+                    gemm(F::one(), wt, dyt, F::zero(), dcols);
+                    col2im(g, buf, chans.len(), px.clone(), dxs);
+                    Ok::<_, Error>(())
+                })?;
+            }
+            Ok(())
+        })
+    })?;
+    dx.into_shape_with_order((g.n, g.cin, g.h, g.w)).map_err(layout)
+}
+
+/// dW, as at most [`DW_GROUPS`] partial sums over contiguous runs of (image, tile), added in order.
+fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
+    let out_len = g.cout * g.pix();
+    let tile = tile_len::<F>(g.pix(), g.k(), DW_GROUPS.div_ceil(g.n));
+    let work: Vec<(usize, Range<usize>)> = (0..g.n).flat_map(|n| tiles(g.pix(), tile).map(move |t| (n, t))).collect();
+    let groups = DW_GROUPS.min(work.len()).max(1);
+    let partials = (0..groups)
+        .into_par_iter()
+        .map(|gi| {
+            let mut part = Array2::<F>::zeros((g.cout, g.k()));
+            for (n, px) in &work[gi * work.len() / groups..(gi + 1) * work.len() / groups] {
+                let dyt = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?.slice_move(s![.., px.clone()]);
+                let xn = &xs[n * g.img()..(n + 1) * g.img()];
+                // dW += dY[n][:, tile] · cols(tile)ᵀ
+                with_cols(g, xn, 0..g.cin, px.clone(), |cols| gemm(F::one(), dyt, cols.t(), F::one(), part.view_mut()))?;
+            }
+            Ok(part)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut parts = partials.into_iter();
+    let mut dw = parts.next().unwrap_or_else(|| Array2::zeros((g.cout, g.k())));
+    let rest: Vec<Array2<F>> = parts.collect();
+    // dW = Σ_groups partial, in group order, one output row per task
+    dw.axis_iter_mut(Axis(0)).into_par_iter().enumerate().for_each(|(o, mut row)| {
+        rest.iter().for_each(|p| row += &p.row(o));
+    });
+    dw.into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout)
+}
+
+/// db[o] = Σ_n Σ_p dY[n, o, p], in order.
+fn bias_grad<F: Float>(g: &Geom, dy: &[F]) -> Array1<F> {
+    let pix = g.pix();
+    let sums: Vec<F> = (0..g.cout)
+        .into_par_iter()
+        .map(|o| (0..g.n).fold(F::zero(), |acc, n| {
+            let start = (n * g.cout + o) * pix;
+            dy[start..start + pix].iter().fold(acc, |a, &v| a + v)
+        }))
+        .collect();
+    Array1::from(sums)
+}

@@ -1,5 +1,111 @@
+//! Bindings of `ops::conv`, plus `gemm_fwd` (the benchmark's handle on `gemm.rs`).
+
+use numpy::IntoPyArray;
 use pyo3::prelude::*;
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+use super::convert::{arr, float_dispatch, run_kernel};
+use crate::ops::conv::{self, Conv2dCfg, Conv2dNeed};
+use crate::{Error, Float, Result};
+
+const OP: &str = "conv2d";
+
+/// A config from Python's (possibly negative) integers.
+fn cfg(stride: (i64, i64), padding: (i64, i64)) -> Result<Conv2dCfg> {
+    let nonneg = |v: (i64, i64), what: &str| -> Result<[usize; 2]> {
+        match (usize::try_from(v.0), usize::try_from(v.1)) {
+            (Ok(a), Ok(b)) => Ok([a, b]),
+            _ => Err(Error::arg(OP, format!("{what} must be non-negative, got {v:?}"))),
+        }
+    };
+    Ok(Conv2dCfg::new(nonneg(stride, "stride")?, nonneg(padding, "padding")?))
+}
+
+/// y = conv2d(x, weight) + bias, zero padding.
+///
+/// Args:
+///     x: (N, Cin, H, W) float32/float64 array.
+///     weight: (Cout, Cin, kh, kw), same dtype.
+///     bias: (Cout,) or None.
+///     stride: (sh, sw), each >= 1.
+///     padding: (ph, pw), each >= 0.
+/// Returns:
+///     y, (N, Cout, Ho, Wo).
+#[pyfunction]
+#[pyo3(signature = (x, weight, bias=None, stride=(1, 1), padding=(0, 0)))]
+fn conv2d_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, PyAny>, bias: Option<&Bound<'py, PyAny>>,
+                   stride: (i64, i64), padding: (i64, i64)) -> PyResult<Bound<'py, PyAny>> {
+    let cfg = cfg(stride, padding)?;
+    float_dispatch!(OP, "input", x, F => {
+        let (x, w) = (arr::<F>(OP, "input", x)?, arr::<F>(OP, "weight", weight)?);
+        let b = bias.map(|b| arr::<F>(OP, "bias", b)).transpose()?;
+        let (xv, wv, bv) = (x.as_array(), w.as_array(), b.as_ref().map(|b| b.as_array()));
+        let y = run_kernel(py, || conv::conv2d_fwd(xv, wv, bv, &cfg))?;
+        Ok(y.into_pyarray(py).into_any())
+    })
+}
+
+/// Gradients of conv2d_fwd w.r.t. x, weight and bias; those not requested are None.
+///
+/// Args:
+///     x: the forward input (N, Cin, H, W).
+///     weight: the forward weight (Cout, Cin, kh, kw).
+///     grad_output: (N, Cout, Ho, Wo).
+///     stride: (sh, sw) of the forward.
+///     padding: (ph, pw) of the forward.
+///     need_x: compute dx.
+///     need_w: compute dweight.
+///     need_b: compute dbias.
+/// Returns:
+///     (dx or None, dweight or None, dbias or None).
+#[pyfunction]
+#[pyo3(signature = (x, weight, grad_output, stride=(1, 1), padding=(0, 0), need_x=true, need_w=true, need_b=true))]
+#[allow(clippy::too_many_arguments)]
+fn conv2d_bwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, PyAny>, grad_output: &Bound<'py, PyAny>,
+                   stride: (i64, i64), padding: (i64, i64), need_x: bool, need_w: bool, need_b: bool)
+                   -> PyResult<Bound<'py, PyAny>> {
+    let cfg = cfg(stride, padding)?;
+    let need = Conv2dNeed { x: need_x, w: need_w, b: need_b };
+    float_dispatch!(OP, "input", x, F => {
+        let (x, w, g) = (arr::<F>(OP, "input", x)?, arr::<F>(OP, "weight", weight)?, arr::<F>(OP, "grad_output", grad_output)?);
+        let (xv, wv, gv) = (x.as_array(), w.as_array(), g.as_array());
+        let grads = run_kernel(py, || conv::conv2d_bwd(xv, wv, gv, &cfg, need))?;
+        Ok((grads.x.map(|a| a.into_pyarray(py)), grads.w.map(|a| a.into_pyarray(py)), grads.b.map(|a| a.into_pyarray(py)))
+            .into_pyobject(py)?
+            .into_any())
+    })
+}
+
+/// a · b through mipnet's GEMM (`gemm_par`), for benchmarking it.
+///
+/// Args:
+///     a: (m, k) float32/float64 array.
+///     b: (k, n), same dtype.
+/// Returns:
+///     (m, n) product.
+#[pyfunction]
+fn gemm_fwd<'py>(py: Python<'py>, a: &Bound<'py, PyAny>, b: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+    const GEMM: &str = "gemm";
+    float_dispatch!(GEMM, "a", a, F => {
+        let (a, b) = (arr::<F>(GEMM, "a", a)?, arr::<F>(GEMM, "b", b)?);
+        let (av, bv) = (a.as_array(), b.as_array());
+        let c = run_kernel(py, || {
+            let (a2, b2) = (crate::tensor::fixed::<_, numpy::ndarray::Ix2>(GEMM, "a", av)?,
+                            crate::tensor::fixed::<_, numpy::ndarray::Ix2>(GEMM, "b", bv)?);
+            if a2.ncols() != b2.nrows() {
+                return Err(Error::shape(GEMM, "a.shape[1] must equal b.shape[0]", &[("a", a2.shape()), ("b", b2.shape())]));
+            }
+            let mut c = numpy::ndarray::Array2::<F>::zeros((a2.nrows(), b2.ncols()));
+            // C = A · B
+            crate::gemm::gemm_par(F::c(1.0), a2, b2, F::c(0.0), c.view_mut());
+            Ok(c)
+        })?;
+        Ok(c.into_pyarray(py).into_any())
+    })
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(conv2d_fwd, m)?)?;
+    m.add_function(wrap_pyfunction!(conv2d_bwd, m)?)?;
+    m.add_function(wrap_pyfunction!(gemm_fwd, m)?)?;
     Ok(())
 }
