@@ -45,6 +45,7 @@ fn check_eps(op: &'static str, eps: f64) -> Result<()> {
 }
 
 /// Output of `instance_norm_fwd`: y and the per-(n, c) statistics its backward needs.
+#[derive(Debug)]
 pub struct InstanceNormOut<F> {
     pub y: Array4<F>,
     /// (N, C) mean of each plane.
@@ -55,6 +56,7 @@ pub struct InstanceNormOut<F> {
 
 /// Output of `batch_norm_fwd`: y, the per-channel statistics used (batch or running), and the
 /// updated running statistics (training with running stats given; the inputs are never mutated).
+#[derive(Debug)]
 pub struct BatchNormOut<F> {
     pub y: Array4<F>,
     /// (C,) mean used for normalising.
@@ -67,6 +69,7 @@ pub struct BatchNormOut<F> {
 
 /// Grads of a normalisation w.r.t. its input and its per-channel affine parameters. `weight` and
 /// `bias` are what those grads would be (Σ g·x̂ and Σ g per channel) even when the op had none.
+#[derive(Debug)]
 pub struct NormGrads<F> {
     pub x: Array4<F>,
     pub weight: Array1<F>,
