@@ -94,7 +94,7 @@ def _zero_grad_bias(name):
     if not name.endswith(".bias"):
         return False
     conv = name.rsplit(".", 2)[-2]
-    feeds_batch_norm = ".fuse." in name
+    feeds_batch_norm = ".fuse." in name and conv in ("conv1", "conv2")
     feeds_instance_norm = name == "encoder.stem.conv.bias" or (
         name.startswith("encoder.layer") and ".fuse." not in name and conv in ("conv1", "conv2", "proj"))
     return feeds_batch_norm or feeds_instance_norm
@@ -118,7 +118,7 @@ def test_training_step_matches_reference_float64():
             assert diff <= 1e-6 * np.linalg.norm(theirs) + 1e-12, f"{name}: relative error {diff / np.linalg.norm(theirs):.2e}"
     t_buffers = dict(ref.named_buffers())
     for name, b in ours.named_buffers():
-        np.testing.assert_allclose(np.asarray(b), t_buffers[name].numpy(), rtol=1e-10, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(np.asarray(b), t_buffers[name].numpy(), rtol=1e-9, atol=1e-10, err_msg=name)
 
 
 def test_training_step_frozen_bn_update_block_grads_match_reference_float32():

@@ -140,7 +140,7 @@ class Tensor:
         g = np.asarray(gradient.data if isinstance(gradient, Tensor) else gradient, dtype=self.dtype)
         if g.shape != self.shape:
             raise ShapeError(f"backward: gradient shape {list(g.shape)} does not match output shape {list(self.shape)}")
-        backward(self, np.ascontiguousarray(g))
+        backward(self, _contiguous(g))
 
     # ---- operators (each one recorded op from mipnet.ops) ----------------------------------------
     def __add__(self, other: Any) -> "Tensor":
