@@ -73,7 +73,7 @@ def test_save_and_load_round_trip_config_and_weights(tmp_path):
     back = mipnet.load(str(path))
     assert back.config == model.config
     for (k, a), (k2, b) in zip(model.state_dict().items(), back.state_dict().items()):
-        assert k == k2 and a.dtype == b.dtype and np.array_equal(a, b)
+        assert k == k2 and a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
 
 
 def test_safetensors_files_match_the_reference_library(tmp_path):

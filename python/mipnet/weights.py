@@ -27,10 +27,10 @@ def save_safetensors(path: str | os.PathLike, tensors: Mapping[str, Any], metada
     header: dict[str, Any] = {}
     blobs, offset = [], 0
     for name, value in tensors.items():
-        a = np.ascontiguousarray(np.asarray(value.numpy() if hasattr(value, "numpy") else value))
+        a = np.asarray(value.numpy() if hasattr(value, "numpy") else value)
         if a.dtype not in _NAMES:
             raise FormatError(f"save_safetensors: {name} has unsupported dtype {a.dtype}")
-        raw = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
+        raw = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes(order="C")
         header[name] = {"dtype": _NAMES[a.dtype], "shape": list(a.shape), "data_offsets": [offset, offset + len(raw)]}
         blobs.append(raw)
         offset += len(raw)

@@ -1,0 +1,80 @@
+"""The command line: infer (files, globs, calibration outputs), eval, info; python -m mipnet."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import mipnet
+from mipnet import io
+from mipnet.cli import main
+from mipnet.data.synthetic import make_pair
+
+
+@pytest.fixture()
+def pairs_dir(tmp_path):
+    for i in range(2):
+        p = make_pair(48, 64, seed=i)
+        io.write_image(tmp_path / f"scene{i}_left.png", p["left"])
+        io.write_image(tmp_path / f"scene{i}_right.png", p["right"])
+    return tmp_path
+
+
+def test_infer_globs_write_every_output_with_calibration(pairs_dir, tmp_path, capsys):
+    calib = tmp_path / "K.txt"
+    calib.write_text("300 0 32 0 300 24 0 0 1\n0.1\n")
+    out = tmp_path / "out"
+    assert main(["infer", "-l", str(pairs_dir / "*_left.png"), "-r", str(pairs_dir / "*_right.png"),
+                 "-o", str(out), "--iters", "1", "1", "--calib", str(calib)]) == 0
+    assert "UNTRAINED" in capsys.readouterr().err
+    for i in range(2):
+        stem = out / f"scene{i}_left"
+        disp = np.load(f"{stem}_disp.npy")
+        assert disp.shape == (48, 64) and disp.dtype == np.float32
+        np.testing.assert_array_equal(io.read_pfm(f"{stem}_disp.pfm"), disp)
+        assert io.read_image(f"{stem}_disp.png").shape == (48, 64, 3)
+        depth = np.load(f"{stem}_depth.npy")
+        ok = disp > 0
+        np.testing.assert_allclose(depth[ok], 300 * 0.1 / disp[ok], rtol=1e-5)
+        assert (out / f"scene{i}_left_points.ply").read_bytes().startswith(b"ply\n")
+    assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
+
+
+def test_infer_without_images_uses_the_bundled_example(tmp_path, capsys):
+    assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1"]) == 0
+    assert np.load(tmp_path / "example_left_disp.npy").shape == (240, 320)
+    assert "UNTRAINED" in capsys.readouterr().err
+
+
+def test_infer_with_saved_weights_matches_the_python_api(pairs_dir, tmp_path):
+    mipnet.manual_seed(5)
+    model = mipnet.MIPNet()
+    model.save(str(tmp_path / "w.safetensors"))
+    left = pairs_dir / "scene0_left.png"
+    main(["infer", "-l", str(left), "-r", str(pairs_dir / "scene0_right.png"), "-o", str(tmp_path / "o"),
+          "--weights", str(tmp_path / "w.safetensors"), "--iters", "1", "1"])
+    expected = model.eval()(io.read_image(left), io.read_image(pairs_dir / "scene0_right.png"), iters=(1, 1))
+    np.testing.assert_array_equal(np.load(tmp_path / "o" / "scene0_left_disp.npy"), expected)
+
+
+def test_infer_reports_missing_files_and_unpaired_globs(pairs_dir, tmp_path):
+    with pytest.raises(SystemExit, match="no such file"):
+        main(["infer", "-l", str(tmp_path / "nope.png"), "-r", str(tmp_path / "nope.png"), "-o", str(tmp_path)])
+    with pytest.raises(SystemExit, match="2 left images but 1 right"):
+        main(["infer", "-l", str(pairs_dir / "*_left.png"), "-r", str(pairs_dir / "scene0_right.png"), "-o", str(tmp_path)])
+
+
+def test_eval_prints_mipnet_and_sgbm_rows(capsys):
+    if not os.environ.get("CI"):
+        pytest.importorskip("cv2")
+    assert main(["eval", "--dataset", "synthetic-underwater", "--preset", "low_light", "--n", "2",
+                 "--size", "64", "96", "--iters", "1", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "MIPNet (untrained)" in out and "SGBM (full coverage)" in out and "SGBM (covered)" in out
+
+
+def test_info_and_python_dash_m_entry_point():
+    out = subprocess.run([sys.executable, "-m", "mipnet", "info"], capture_output=True, text=True, check=True).stdout
+    assert "5,499,136" in out and "update_rls.gru" in out and "threads=" in out
