@@ -67,6 +67,20 @@ def test_batch_norm_without_affine_or_running_stats_matches_torch():
              lambda x: M.batch_norm(x, None, None, training=True), dtype=np.float64)
 
 
+@pytest.mark.parametrize("training", [True, False])
+def test_batch_norm_weight_only_matches_torch(training):
+    rm, rv = rand((3,), np.float64, seed=3), rand((3,), np.float64, low=0.5, high=2, seed=4)
+    check_op([rand((2, 3, 4, 4)), rand((3,), seed=1)],
+             lambda x, w: F.batch_norm(x, torch.tensor(rm), torch.tensor(rv), w, training=training),
+             lambda x, w: M.batch_norm(x, rm.copy(), rv.copy(), w, training=training), dtype=np.float64)
+
+
+def test_batch_norm_eval_one_value_per_channel_matches_torch():
+    rm, rv = rand((3,), seed=3), rand((3,), low=0.5, high=2, seed=4)
+    check_op([rand((1, 3, 1, 1))], lambda x: F.batch_norm(x, torch.tensor(rm), torch.tensor(rv)),
+             lambda x: M.batch_norm(x, rm, rv))
+
+
 @pytest.mark.parametrize("as_tensor", [False, True])
 def test_batch_norm_running_stats_after_two_steps_update_in_place(as_tensor):
     c = 4

@@ -64,9 +64,11 @@ impl AvgPool2dCfg {
         Some(out)
     }
 
-    /// (OH, OW) for an (H, W) input, or an error when the kernel does not fit the padded input.
+    /// (OH, OW) for an input (.., H, W), or an error when the kernel does not fit the padded input.
     pub fn out_hw(&self, shape: &[usize]) -> Result<(usize, usize)> {
-        let (h, w) = (shape[shape.len() - 2], shape[shape.len() - 1]);
+        let &[.., h, w] = shape else {
+            return Err(Error::shape("avg_pool2d", "input must have at least 2 dimensions", &[("input", shape)]));
+        };
         match (self.out_len(h, 0), self.out_len(w, 1)) {
             (Some(oh), Some(ow)) => Ok((oh, ow)),
             _ => Err(Error::shape("avg_pool2d", format!("kernel_size {:?} is larger than the padded input (padding {:?})", self.kernel, self.padding), &[("input", shape)])),
