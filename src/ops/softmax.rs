@@ -6,7 +6,7 @@
 
 use crate::tensor::{check_nonempty, check_same_shape};
 use crate::{Error, Float, Result};
-use ndarray::{s, Array3, ArrayD, ArrayView, ArrayView2, ArrayView3, ArrayViewD, ArrayViewMut2, Axis, IxDyn};
+use ndarray::{s, Array3, ArrayBase, ArrayD, ArrayView, ArrayView2, ArrayView3, ArrayViewD, ArrayViewMut2, ArrayViewMut3, Axis, Ix3, IxDyn, RawData};
 use rayon::prelude::*;
 
 /// A torch-style dim in [−ndim, ndim) (a 0-d tensor takes −1 and 0) as an axis of a rank-`ndim` array.
@@ -19,8 +19,8 @@ fn resolve_axis(op: &'static str, dim: isize, shape: &[usize]) -> Result<usize> 
     Ok(dim.rem_euclid(n) as usize)
 }
 
-/// Columns per block: a block is an (n, ≤ BLOCK) slab of the (outer, n, inner) view, so the
-/// reductions along the softmax axis run over contiguous rows.
+/// Columns (lanes) per block: a block is an (n, ≤ BLOCK) slab of the (outer, n, inner) view, and the
+/// reductions along the softmax axis run row by row over it (contiguous rows unless inner = 1).
 const BLOCK: usize = 512;
 
 /// The C-order array seen as (outer, n, inner) with n the length of `axis` (0-d: (1, 1, 1)).
@@ -30,9 +30,16 @@ fn as_3d<'a, F>(x: ArrayView<'a, F, IxDyn>, axis: usize) -> Option<ArrayView3<'a
     x.into_shape_with_order((outer, n, inner)).ok()
 }
 
-/// Runs `f(out_block, in_blocks)` over (n, ≤ BLOCK) blocks of (outer, n, inner) arrays: in parallel over
+/// The lanes of an (outer, n, inner) view as the columns of its blocks: (outer, n, 1) (softmax over the
+/// last axis) becomes the (1, n, outer) view of the same memory, so a block spans up to BLOCK lanes.
+fn lanes_as_columns<S: RawData>(a: ArrayBase<S, Ix3>) -> ArrayBase<S, Ix3> {
+    if a.dim().2 == 1 { a.permuted_axes([2, 1, 0]) } else { a }
+}
+
+/// Runs `f(out_block, in_blocks)` over (n, ≤ BLOCK) blocks of (outer, n, inner) views: in parallel over
 /// outer indices and column blocks, each block written by exactly one task.
-fn for_blocks<F: Float>(out: &mut Array3<F>, ins: &[ArrayView3<F>], f: impl Fn(ArrayViewMut2<F>, &[ArrayView2<F>]) + Sync) {
+fn for_blocks<F: Float>(out: ArrayViewMut3<F>, ins: &[ArrayView3<F>], f: impl Fn(ArrayViewMut2<F>, &[ArrayView2<F>]) + Sync) {
+    let (mut out, ins): (_, Vec<_>) = (lanes_as_columns(out), ins.iter().map(|a| lanes_as_columns(a.view())).collect());
     out.outer_iter_mut().into_par_iter().enumerate().for_each(|(o, mut out_o)| {
         let ins_o: Vec<ArrayView2<F>> = ins.iter().map(|a| a.index_axis(Axis(0), o)).collect();
         out_o.axis_chunks_iter_mut(Axis(1), BLOCK).into_par_iter().enumerate().for_each(|(b, out_b)| {
@@ -60,7 +67,7 @@ pub fn softmax_fwd<F: Float>(x: ArrayViewD<F>, dim: isize) -> Result<ArrayD<F>> 
     let x = x.as_standard_layout();
     let x3 = as_3d(x.view(), axis).ok_or_else(|| Error::shape(op, "input not reshapeable", &[("input", x.shape())]))?;
     let mut y = Array3::<F>::zeros(x3.raw_dim());
-    for_blocks(&mut y, &[x3], |mut yb, xb| {
+    for_blocks(y.view_mut(), &[x3], |mut yb, xb| {
         let xb = &xb[0];
         // m[j] = max_i x[i, j]
         let mut m = vec![F::neg_infinity(); xb.ncols()];
@@ -103,7 +110,7 @@ pub fn softmax_bwd<F: Float>(y: ArrayViewD<F>, g: ArrayViewD<F>, dim: isize) -> 
     let reshape_err = || Error::shape(op, "output not reshapeable", &[("output", y.shape())]);
     let (y3, g3) = (as_3d(y.view(), axis).ok_or_else(reshape_err)?, as_3d(g.view(), axis).ok_or_else(reshape_err)?);
     let mut dx = Array3::<F>::zeros(y3.raw_dim());
-    for_blocks(&mut dx, &[y3, g3], |mut db, yg| {
+    for_blocks(dx.view_mut(), &[y3, g3], |mut db, yg| {
         let (yb, gb) = (&yg[0], &yg[1]);
         // s[j] = Σ_i g[i, j]·y[i, j]
         let mut sum = vec![F::zero(); yb.ncols()];
