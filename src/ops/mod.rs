@@ -9,9 +9,9 @@
 //! | mean over axes | `elementwise::mean_fwd` | `elementwise::mean_bwd` | `x.mean(dim, keepdim)` |
 //! | cat / slice along an axis | `shape::cat_fwd`, `shape::slice_fwd` | `shape::slice_bwd` | `torch.cat`, `x[..., a:b]` |
 //! | conv2d (any kernel, stride, per-axis zero padding, bias) | `conv::conv2d_fwd` | `conv::conv2d_bwd` (x, w, b) | `F.conv2d` |
-//! | instance norm (no affine) | `norm::instance_norm_fwd` | `norm::instance_norm_bwd` (x) | `F.instance_norm` |
+//! | instance norm (optional affine) | `norm::instance_norm_fwd` | `norm::instance_norm_bwd` (x, w, b) | `F.instance_norm` |
 //! | batch norm (train / eval) | `norm::batch_norm_fwd` | `norm::batch_norm_bwd` (x, w, b) | `F.batch_norm` |
-//! | avg_pool2d | `pool::avg_pool2d_fwd` | `pool::avg_pool2d_bwd` (x) | `F.avg_pool2d` |
+//! | avg_pool2d (padding, ceil_mode, count_include_pad, divisor_override) | `pool::avg_pool2d_fwd` | `pool::avg_pool2d_bwd` (x) | `F.avg_pool2d` |
 //! | softmax along an axis | `softmax::softmax_fwd` | `softmax::softmax_bwd` (x, from y) | `torch.softmax` |
 //! | pad (zeros / replicate) | `pad::pad2d_fwd` | `pad::pad2d_bwd` (x) | `F.pad` |
 //! | grid_sample (bilinear; zeros / border; align_corners) | `sample::grid_sample_fwd` | `sample::grid_sample_bwd` (x, grid) | `F.grid_sample` |

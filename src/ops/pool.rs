@@ -8,7 +8,7 @@
 
 use crate::tensor::check_nonempty;
 use crate::{Error, Float, Result};
-use ndarray::{s, Array3, ArrayD, ArrayViewD, IxDyn, Zip};
+use ndarray::{Array3, ArrayD, ArrayViewD, IxDyn, Zip};
 
 /// Geometry of `avg_pool2d`, shared by forward, backward and binding (torch's argument semantics).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -64,9 +64,11 @@ impl AvgPool2dCfg {
         Some(out)
     }
 
-    /// (OH, OW) for an (H, W) input, or an error when the kernel does not fit the padded input.
+    /// (OH, OW) for an input (.., H, W), or an error when the kernel does not fit the padded input.
     pub fn out_hw(&self, shape: &[usize]) -> Result<(usize, usize)> {
-        let (h, w) = (shape[shape.len() - 2], shape[shape.len() - 1]);
+        let &[.., h, w] = shape else {
+            return Err(Error::shape("avg_pool2d", "input must have at least 2 dimensions", &[("input", shape)]));
+        };
         match (self.out_len(h, 0), self.out_len(w, 1)) {
             (Some(oh), Some(ow)) => Ok((oh, ow)),
             _ => Err(Error::shape("avg_pool2d", format!("kernel_size {:?} is larger than the padded input (padding {:?})", self.kernel, self.padding), &[("input", shape)])),
@@ -79,6 +81,11 @@ impl AvgPool2dCfg {
         // padded coordinates: [o·s, min(o·s + k, len + 2p)), shifted back by p into the input
         let (start_p, end_p) = (o * s, (o * s + k).min(len + 2 * p));
         Window { start: start_p.saturating_sub(p).min(len), end: end_p.saturating_sub(p).min(len), padded_len: end_p - start_p }
+    }
+
+    /// The row windows (OH of them) and column windows (OW) of an (H, W) input.
+    fn windows(&self, h: usize, w: usize, oh: usize, ow: usize) -> (Vec<Window>, Vec<Window>) {
+        ((0..oh).map(|i| self.window(i, h, 0)).collect(), (0..ow).map(|j| self.window(j, w, 1)).collect())
     }
 
     /// The divisor of the window at (oh, ow).
@@ -122,15 +129,19 @@ pub fn avg_pool2d_fwd<F: Float>(x: ArrayViewD<F>, cfg: &AvgPool2dCfg) -> Result<
     // (.., H, W) -> (P, H, W)
     let xp = x.view().into_shape_with_order((p, h, w)).map_err(|_| Error::shape("avg_pool2d", "input not reshapeable", &[("input", x.shape())]))?;
     let (oh, ow) = (out_shape[out_shape.len() - 2], out_shape[out_shape.len() - 1]);
+    let (rows, cols) = cfg.windows(h, w, oh, ow);
     let mut out = Array3::<F>::zeros((p, oh, ow));
     Zip::from(out.outer_iter_mut()).and(xp.outer_iter()).par_for_each(|mut o, xpl| {
-        for i in 0..oh {
-            let wh = cfg.window(i, h, 0);
-            for j in 0..ow {
-                let ww = cfg.window(j, w, 1);
-                // out[i, j] = Σ_window x / divisor
-                let sum = xpl.slice(s![wh.start..wh.end, ww.start..ww.end]).sum();
-                o[[i, j]] = sum / F::c(cfg.divisor(&wh, &ww) as f64);
+        let mut colsum = vec![F::zero(); w];
+        for (wh, mut orow) in rows.iter().zip(o.rows_mut()) {
+            // colsum[c] = Σ_{r in window rows} x[r, c]
+            colsum.iter_mut().for_each(|v| *v = F::zero());
+            for r in wh.start..wh.end {
+                colsum.iter_mut().zip(xpl.row(r)).for_each(|(a, &v)| *a += v);
+            }
+            // out[i, j] = Σ_{c in window cols} colsum[c] / divisor(i, j)
+            for (ww, o) in cols.iter().zip(orow.iter_mut()) {
+                *o = colsum[ww.start..ww.end].iter().copied().sum::<F>() / F::c(cfg.divisor(wh, ww) as f64);
             }
         }
     });
@@ -156,14 +167,22 @@ pub fn avg_pool2d_bwd<F: Float>(g: ArrayViewD<F>, input_shape: &[usize], cfg: &A
     let g = g.as_standard_layout();
     // (.., OH, OW) -> (P, OH, OW)
     let gp = g.view().into_shape_with_order((p, oh, ow)).map_err(|_| Error::shape(op, "grad_output not reshapeable", &[("grad_output", g.shape())]))?;
+    let (rows, cols) = cfg.windows(h, w, oh, ow);
     let mut dx = Array3::<F>::zeros((p, h, w));
     // One thread per (n, c) plane: the windows of a plane scatter into that plane only.
     Zip::from(dx.outer_iter_mut()).and(gp.outer_iter()).par_for_each(|mut d, gpl| {
-        for ((i, j), &gv) in gpl.indexed_iter() {
-            let (wh, ww) = (cfg.window(i, h, 0), cfg.window(j, w, 1));
-            // dx[window] += g[i, j] / divisor
-            let share = gv / F::c(cfg.divisor(&wh, &ww) as f64);
-            d.slice_mut(s![wh.start..wh.end, ww.start..ww.end]).mapv_inplace(|v| v + share);
+        let mut share = vec![F::zero(); w];
+        for (wh, grow) in rows.iter().zip(gpl.rows()) {
+            // share[c] = Σ_{j: c in window j} g[i, j] / divisor(i, j)
+            share.iter_mut().for_each(|v| *v = F::zero());
+            for (ww, &gv) in cols.iter().zip(grow) {
+                let v = gv / F::c(cfg.divisor(wh, ww) as f64);
+                share[ww.start..ww.end].iter_mut().for_each(|s| *s += v);
+            }
+            // dx[r, :] += share for every row r of window i
+            for r in wh.start..wh.end {
+                d.row_mut(r).iter_mut().zip(&share).for_each(|(d, &s)| *d += s);
+            }
         }
     });
     dx.into_shape_with_order(IxDyn(input_shape)).map_err(|_| Error::shape(op, "grad not reshapeable", &[("input", input_shape)]))

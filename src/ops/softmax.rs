@@ -6,7 +6,8 @@
 
 use crate::tensor::{check_nonempty, check_same_shape};
 use crate::{Error, Float, Result};
-use ndarray::{ArrayD, ArrayViewD, Axis, Zip};
+use ndarray::{s, Array3, ArrayBase, ArrayD, ArrayView, ArrayView2, ArrayView3, ArrayViewD, ArrayViewMut2, ArrayViewMut3, Axis, Ix3, IxDyn, RawData};
+use rayon::prelude::*;
 
 /// A torch-style dim in [−ndim, ndim) (a 0-d tensor takes −1 and 0) as an axis of a rank-`ndim` array.
 fn resolve_axis(op: &'static str, dim: isize, shape: &[usize]) -> Result<usize> {
@@ -18,9 +19,35 @@ fn resolve_axis(op: &'static str, dim: isize, shape: &[usize]) -> Result<usize> 
     Ok(dim.rem_euclid(n) as usize)
 }
 
-/// The array with a length-1 axis added when it is 0-d, so a 0-d softmax is a softmax over one element.
-fn at_least_1d<'a, F>(x: ArrayViewD<'a, F>) -> ArrayViewD<'a, F> {
-    if x.ndim() == 0 { x.insert_axis(Axis(0)) } else { x }
+/// Columns (lanes) per block: a block is an (n, ≤ BLOCK) slab of the (outer, n, inner) view, and the
+/// reductions along the softmax axis run row by row over it (contiguous rows unless inner = 1).
+const BLOCK: usize = 512;
+
+/// The C-order array seen as (outer, n, inner) with n the length of `axis` (0-d: (1, 1, 1)).
+fn as_3d<'a, F>(x: ArrayView<'a, F, IxDyn>, axis: usize) -> Option<ArrayView3<'a, F>> {
+    let s = x.shape();
+    let (outer, n, inner) = if s.is_empty() { (1, 1, 1) } else { (s[..axis].iter().product(), s[axis], s[axis + 1..].iter().product()) };
+    x.into_shape_with_order((outer, n, inner)).ok()
+}
+
+/// The lanes of an (outer, n, inner) view as the columns of its blocks: (outer, n, 1) (softmax over the
+/// last axis) becomes the (1, n, outer) view of the same memory, so a block spans up to BLOCK lanes.
+fn lanes_as_columns<S: RawData>(a: ArrayBase<S, Ix3>) -> ArrayBase<S, Ix3> {
+    if a.dim().2 == 1 { a.permuted_axes([2, 1, 0]) } else { a }
+}
+
+/// Runs `f(out_block, in_blocks)` over (n, ≤ BLOCK) blocks of (outer, n, inner) views: in parallel over
+/// outer indices and column blocks, each block written by exactly one task.
+fn for_blocks<F: Float>(out: ArrayViewMut3<F>, ins: &[ArrayView3<F>], f: impl Fn(ArrayViewMut2<F>, &[ArrayView2<F>]) + Sync) {
+    let (mut out, ins): (_, Vec<_>) = (lanes_as_columns(out), ins.iter().map(|a| lanes_as_columns(a.view())).collect());
+    out.outer_iter_mut().into_par_iter().enumerate().for_each(|(o, mut out_o)| {
+        let ins_o: Vec<ArrayView2<F>> = ins.iter().map(|a| a.index_axis(Axis(0), o)).collect();
+        out_o.axis_chunks_iter_mut(Axis(1), BLOCK).into_par_iter().enumerate().for_each(|(b, out_b)| {
+            let cols = b * BLOCK..(b * BLOCK + out_b.ncols());
+            let ins_b: Vec<ArrayView2<F>> = ins_o.iter().map(|a| a.slice(s![.., cols.clone()])).collect();
+            f(out_b, &ins_b);
+        });
+    });
 }
 
 /// Softmax along `dim`, numerically stable (the lane maximum is subtracted before exponentiating).
@@ -34,19 +61,32 @@ fn at_least_1d<'a, F>(x: ArrayViewD<'a, F>) -> ArrayViewD<'a, F> {
 /// Torch: `torch.softmax(x, dim)`.
 pub fn softmax_fwd<F: Float>(x: ArrayViewD<F>, dim: isize) -> Result<ArrayD<F>> {
     let op = "softmax";
-    let axis = Axis(resolve_axis(op, dim, x.shape())?);
+    let axis = resolve_axis(op, dim, x.shape())?;
     check_nonempty(op, &[("input", x.shape())])?;
     let shape = x.raw_dim();
-    let x = at_least_1d(x);
     let x = x.as_standard_layout();
-    let mut y = ArrayD::<F>::zeros(x.raw_dim());
-    // One lane per position of the other axes, lanes in parallel.
-    Zip::from(y.lanes_mut(axis)).and(x.lanes(axis)).par_for_each(|mut yl, xl| {
-        let m = xl.fold(F::neg_infinity(), |m, &v| m.max(v));
-        // y = e^(x − m) / Σ e^(x − m)
-        Zip::from(&mut yl).and(&xl).for_each(|y, &x| *y = (x - m).exp());
-        let inv = F::one() / yl.sum();
-        yl.mapv_inplace(|v| v * inv);
+    let x3 = as_3d(x.view(), axis).ok_or_else(|| Error::shape(op, "input not reshapeable", &[("input", x.shape())]))?;
+    let mut y = Array3::<F>::zeros(x3.raw_dim());
+    for_blocks(y.view_mut(), &[x3], |mut yb, xb| {
+        let xb = &xb[0];
+        // m[j] = max_i x[i, j]
+        let mut m = vec![F::neg_infinity(); xb.ncols()];
+        for xr in xb.rows() {
+            m.iter_mut().zip(xr.iter()).for_each(|(m, &v)| *m = m.max(v));
+        }
+        // y[i, j] = e^(x[i, j] − m[j]), z[j] = Σ_i y[i, j]
+        let mut z = vec![F::zero(); xb.ncols()];
+        for (mut yr, xr) in yb.rows_mut().into_iter().zip(xb.rows()) {
+            yr.iter_mut().zip(xr.iter()).zip(m.iter().zip(z.iter_mut())).for_each(|((y, &x), (&m, z))| {
+                *y = (x - m).exp();
+                *z += *y;
+            });
+        }
+        // y[i, j] /= z[j]
+        z.iter_mut().for_each(|v| *v = F::one() / *v);
+        for mut yr in yb.rows_mut() {
+            yr.iter_mut().zip(&z).for_each(|(y, &r)| *y *= r);
+        }
     });
     y.into_shape_with_order(shape).map_err(|_| Error::shape(op, "output not reshapeable", &[("input", x.shape())]))
 }
@@ -63,16 +103,24 @@ pub fn softmax_fwd<F: Float>(x: ArrayViewD<F>, dim: isize) -> Result<ArrayD<F>> 
 pub fn softmax_bwd<F: Float>(y: ArrayViewD<F>, g: ArrayViewD<F>, dim: isize) -> Result<ArrayD<F>> {
     let op = "softmax";
     check_same_shape(op, ("output", y.shape()), ("grad_output", g.shape()))?;
-    let axis = Axis(resolve_axis(op, dim, y.shape())?);
+    let axis = resolve_axis(op, dim, y.shape())?;
     check_nonempty(op, &[("output", y.shape())])?;
     let shape = y.raw_dim();
-    let (y, g) = (at_least_1d(y), at_least_1d(g));
     let (y, g) = (y.as_standard_layout(), g.as_standard_layout());
-    let mut dx = ArrayD::<F>::zeros(y.raw_dim());
-    Zip::from(dx.lanes_mut(axis)).and(y.lanes(axis)).and(g.lanes(axis)).par_for_each(|mut dl, yl, gl| {
-        // s = Σ g·y along the lane; dx = y·(g − s)
-        let s = Zip::from(&yl).and(&gl).fold(F::zero(), |acc, &y, &g| acc + g * y);
-        Zip::from(&mut dl).and(&yl).and(&gl).for_each(|d, &y, &g| *d = y * (g - s));
+    let reshape_err = || Error::shape(op, "output not reshapeable", &[("output", y.shape())]);
+    let (y3, g3) = (as_3d(y.view(), axis).ok_or_else(reshape_err)?, as_3d(g.view(), axis).ok_or_else(reshape_err)?);
+    let mut dx = Array3::<F>::zeros(y3.raw_dim());
+    for_blocks(dx.view_mut(), &[y3, g3], |mut db, yg| {
+        let (yb, gb) = (&yg[0], &yg[1]);
+        // s[j] = Σ_i g[i, j]·y[i, j]
+        let mut sum = vec![F::zero(); yb.ncols()];
+        for (yr, gr) in yb.rows().into_iter().zip(gb.rows()) {
+            sum.iter_mut().zip(yr.iter().zip(gr.iter())).for_each(|(s, (&y, &g))| *s += g * y);
+        }
+        // dx[i, j] = y[i, j]·(g[i, j] − s[j])
+        for ((mut dr, yr), gr) in db.rows_mut().into_iter().zip(yb.rows()).zip(gb.rows()) {
+            dr.iter_mut().zip(yr.iter().zip(gr.iter())).zip(&sum).for_each(|((d, (&y, &g)), &s)| *d = y * (g - s));
+        }
     });
     dx.into_shape_with_order(shape).map_err(|_| Error::shape(op, "grad not reshapeable", &[("output", y.shape())]))
 }

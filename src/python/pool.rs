@@ -20,6 +20,7 @@ use crate::ops::pool::{self, AvgPool2dCfg};
 ///     the pooled array (.., OH, OW).
 #[pyfunction]
 #[pyo3(signature = (x, kernel_size, stride, padding=[0, 0], ceil_mode=false, count_include_pad=true, divisor_override=None))]
+#[allow(clippy::too_many_arguments)]
 fn avg_pool2d_fwd<'py>(
     py: Python<'py>, x: &Bound<'py, PyAny>, kernel_size: [i64; 2], stride: [i64; 2], padding: [i64; 2],
     ceil_mode: bool, count_include_pad: bool, divisor_override: Option<i64>,

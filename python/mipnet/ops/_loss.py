@@ -25,7 +25,8 @@ class _MaskedL1(Function):
     @staticmethod
     def backward(ctx, g):
         pred, target, valid = ctx.saved_tensors
-        return _core.masked_l1_bwd(pred, target, valid, float(g)), None, None
+        # g holds one value (0-d, or 1-d after Tensor.backward's np.ascontiguousarray)
+        return _core.masked_l1_bwd(pred, target, valid, np.asarray(g).item()), None, None
 
 
 def _data(a: Any) -> Any:
