@@ -8,7 +8,7 @@
 //!
 //! Work is split by (n, row) of the result being written, so every sum runs in a fixed order.
 
-use crate::tensor::{check_nonempty, fixed};
+use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, ArrayViewMut2, Axis, Ix4};
 use rayon::prelude::*;
@@ -103,7 +103,7 @@ pub fn ip_corr_fwd<F: Float>(fl: ArrayViewD<F>, stack: ArrayViewD<F>, cfg: &IpCo
     let (fl, stack) = (fl.as_standard_layout(), stack.as_standard_layout());
     let (fs, ss) = (fl.as_slice().expect("standard layout"), stack.as_slice().expect("standard layout"));
     let inv = F::one() / F::from_usize(d.cg).unwrap_or_else(F::max_value);
-    let mut out = Array4::<F>::zeros((d.n, cfg.groups * d.s, d.h, d.w));
+    let mut out = zeros((d.n, cfg.groups * d.s, d.h, d.w));
     for_each_row(&mut out, |b, y, mut orow| {
         let mut acc = vec![F::zero(); d.s * d.w];
         for g in 0..cfg.groups {
@@ -160,8 +160,8 @@ pub fn ip_corr_bwd<F: Float>(fl: ArrayViewD<F>, stack: ArrayViewD<F>, g: ArrayVi
     );
     let inv = F::one() / F::from_usize(d.cg).unwrap_or_else(F::max_value);
     let gsz = cfg.groups * d.s;
-    let mut dfl = Array4::<F>::zeros((d.n, d.c, d.h, d.w));
-    let mut dstack = Array4::<F>::zeros((d.n, d.s * d.c, d.h, d.w));
+    let mut dfl = zeros((d.n, d.c, d.h, d.w));
+    let mut dstack = zeros((d.n, d.s * d.c, d.h, d.w));
     for_each_row2(&mut dfl, &mut dstack, |b, y, mut dfrow, mut dsrow| {
         for g_ in 0..cfg.groups {
             for k in 0..d.cg {
@@ -246,7 +246,7 @@ pub fn rls_corr_fwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, cfg: &Rl
     let (fl, warped) = (fl.as_standard_layout(), warped.as_standard_layout());
     let (fs, ws) = (fl.as_slice().expect("standard layout"), warped.as_slice().expect("standard layout"));
     let inv = F::one() / F::from_usize(c).unwrap_or_else(F::max_value);
-    let mut out = Array4::<F>::zeros((n, cfg.candidates(), h, w));
+    let mut out = zeros((n, cfg.candidates(), h, w));
     for_each_row(&mut out, |b, y, mut orow| {
         let mut ext = vec![F::zero(); w + 2 * cfg.rx];
         for j in 0..2 * cfg.ry + 1 {
@@ -303,7 +303,7 @@ pub fn rls_corr_bwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, g: Array
     );
     let inv = F::one() / F::from_usize(c).unwrap_or_else(F::max_value);
     let (nx, ny, rx) = (2 * cfg.rx + 1, 2 * cfg.ry + 1, cfg.rx);
-    let mut dfl = Array4::<F>::zeros((n, c, h, w));
+    let mut dfl = zeros((n, c, h, w));
     for_each_row(&mut dfl, |b, y, mut drow| {
         let mut ext = vec![F::zero(); w + 2 * rx];
         for ch in 0..c {
@@ -319,7 +319,7 @@ pub fn rls_corr_bwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, g: Array
             d.iter_mut().for_each(|v| *v = *v * inv);
         }
     });
-    let mut dwarped = Array4::<F>::zeros((n, c, h, w));
+    let mut dwarped = zeros((n, c, h, w));
     for_each_row(&mut dwarped, |b, yt, mut drow| {
         // the (y, j) whose clamped source row is yt
         let sources: Vec<(usize, usize)> = (0..h).flat_map(|y| (0..ny).map(move |j| (y, j))).filter(|&(y, j)| cfg.src_row(y, j, h) == yt).collect();

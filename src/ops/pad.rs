@@ -5,7 +5,7 @@
 //! | pad2d, constant | `pad2d_fwd`: border filled with `value` | `pad2d_bwd`: the interior window of g |
 //! | pad2d, replicate | `pad2d_fwd`: border copies the nearest edge pixel | `pad2d_bwd`: border grads summed into edge pixels |
 
-use crate::tensor::{check_nonempty, fixed};
+use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, Ix4};
 use rayon::prelude::*;
@@ -93,7 +93,7 @@ pub fn pad2d_fwd<F: Float>(x: ArrayViewD<F>, cfg: &Pad2dCfg) -> Result<Array4<F>
     let cols: Vec<Option<usize>> = (0..wo).map(|ox| cfg.source(ox, left, w)).collect();
     let fill = F::c(cfg.value);
     let src = x.as_slice().expect("standard layout");
-    let mut out = Array4::<F>::zeros((n, c, ho, wo));
+    let mut out = zeros((n, c, ho, wo));
     let dst = out.as_slice_mut().expect("fresh array");
     dst.par_chunks_mut(ho * wo).zip(src.par_chunks(h * w)).for_each(|(o, xp)| {
         for (oy, orow) in o.chunks_mut(wo).enumerate() {
@@ -136,7 +136,7 @@ pub fn pad2d_bwd<F: Float>(g: ArrayViewD<F>, input_hw: (usize, usize), cfg: &Pad
     let (top, left) = (cfg.pad[2], cfg.pad[0]);
     let cols: Vec<Option<usize>> = (0..wo).map(|ox| cfg.source(ox, left, w)).collect();
     let src = g.as_slice().expect("standard layout");
-    let mut dx = Array4::<F>::zeros((n, c, h, w));
+    let mut dx = zeros((n, c, h, w));
     let dst = dx.as_slice_mut().expect("fresh array");
     dst.par_chunks_mut(h * w).zip(src.par_chunks(ho * wo)).for_each(|(d, gp)| {
         for (oy, grow) in gp.chunks(wo).enumerate() {

@@ -10,7 +10,7 @@
 //! Every scatter-style backward owns whole (n, c) planes of its result, so sums run in a fixed order
 //! and results do not depend on the thread count.
 
-use crate::tensor::{check_nonempty, fixed};
+use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array3, Array4, ArrayView4, ArrayViewD, Ix3, Ix4};
 use rayon::prelude::*;
@@ -194,7 +194,7 @@ pub fn grid_sample_fwd<F: Float>(x: ArrayViewD<F>, grid: ArrayViewD<F>, cfg: &Gr
     let gs = grid.as_slice().expect("standard layout");
     let taps: Vec<Vec<Tap<F>>> = gs.par_chunks(2 * pix).map(|g| loc.taps(g)).collect();
     let xs = x.as_slice().expect("standard layout");
-    let mut out = Array4::<F>::zeros((n, c, ho, wo));
+    let mut out = zeros((n, c, ho, wo));
     let cb = channel_block(c, n);
     let os = out.as_slice_mut().expect("fresh array");
     // work item = (n, block of cb channels); a block never straddles two batch elements
@@ -267,7 +267,7 @@ pub fn grid_sample_bwd<F: Float>(
     );
     let dinput = need_input.then(|| {
         let taps: Vec<Vec<Tap<F>>> = grs.par_chunks(2 * pix).map(|gr| loc.taps(gr)).collect();
-        let mut dx = Array4::<F>::zeros((n, c, h, w));
+        let mut dx = zeros((n, c, h, w));
         let dxs = dx.as_slice_mut().expect("fresh array");
         // one (n, c) plane per work item: the scatter order inside a plane is fixed
         dxs.par_chunks_mut(plane).zip(gs.par_chunks(pix)).enumerate().for_each(|(i, (dp, gp))| {
@@ -283,7 +283,7 @@ pub fn grid_sample_bwd<F: Float>(
         dx
     });
     let dgrid = need_grid.then(|| {
-        let mut dg = Array4::<F>::zeros((n, ho, wo, 2));
+        let mut dg = zeros((n, ho, wo, 2));
         let dgs = dg.as_slice_mut().expect("fresh array");
         // one (n, output row) per work item, channels summed in order
         dgs.par_chunks_mut(2 * wo).enumerate().for_each(|(r, drow)| {
@@ -382,7 +382,7 @@ pub fn interpolate_bilinear_fwd<F: Float>(x: ArrayViewD<F>, cfg: &InterpCfg) -> 
     let (n, c, h, w) = x.dim();
     let (ho, wo) = cfg.out_hw;
     let (ly, lx) = (cfg.lerps::<F>(h, ho, cfg.scales[0]), cfg.lerps::<F>(w, wo, cfg.scales[1]));
-    let mut out = Array4::<F>::zeros((n, c, ho, wo));
+    let mut out = zeros((n, c, ho, wo));
     let os = out.as_slice_mut().expect("fresh array");
     let xs = x.as_slice().expect("standard layout");
     os.par_chunks_mut(ho * wo).zip(xs.par_chunks(h * w)).for_each(|(o, xp)| {
@@ -421,7 +421,7 @@ pub fn interpolate_bilinear_bwd<F: Float>(g: ArrayViewD<F>, input_hw: (usize, us
     let g = g.as_standard_layout();
     let (ho, wo) = cfg.out_hw;
     let (ly, lx) = (cfg.lerps::<F>(h, ho, cfg.scales[0]), cfg.lerps::<F>(w, wo, cfg.scales[1]));
-    let mut dx = Array4::<F>::zeros((n, c, h, w));
+    let mut dx = zeros((n, c, h, w));
     let ds = dx.as_slice_mut().expect("fresh array");
     let gs = g.as_slice().expect("standard layout");
     ds.par_chunks_mut(h * w).zip(gs.par_chunks(ho * wo)).for_each(|(d, gp)| {
@@ -502,7 +502,7 @@ pub fn unfold_fwd<F: Float>(x: ArrayViewD<F>, cfg: &UnfoldCfg) -> Result<Array3<
     let (lh, lw) = cfg.blocks(OP, h, w, &[("input", x.shape())])?;
     let [kh, kw] = cfg.kernel;
     let l = lh * lw;
-    let mut out = Array3::<F>::zeros((n, c * kh * kw, l));
+    let mut out = zeros((n, c * kh * kw, l));
     let os = out.as_slice_mut().expect("fresh array");
     let xs = x.as_slice().expect("standard layout");
     // one (n, c) input plane <-> kh·kw contiguous output rows
@@ -547,7 +547,7 @@ pub fn fold_fwd<F: Float>(cols: ArrayViewD<F>, output_hw: (usize, usize), cfg: &
     }
     let c = ck / (kh * kw);
     let cols = cols.as_standard_layout();
-    let mut out = Array4::<F>::zeros((n, c, h, w));
+    let mut out = zeros((n, c, h, w));
     let os = out.as_slice_mut().expect("fresh array");
     let cs = cols.as_slice().expect("standard layout");
     // one (n, c) output plane <-> kh·kw contiguous input rows, summed in a fixed order

@@ -5,7 +5,7 @@
 //! |---|---|---|
 //! | convex upsampling by rate R | `convex_upsample_fwd` | `convex_upsample_bwd` (flow, mask) |
 
-use crate::tensor::{check_nonempty, fixed};
+use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, ArrayViewMut2, Axis, Ix4};
 use rayon::prelude::*;
@@ -133,7 +133,7 @@ pub fn convex_upsample_fwd<F: Float>(flow: ArrayViewD<F>, mask: ArrayViewD<F>, c
     let (flow, mask) = (flow.as_standard_layout(), mask.as_standard_layout());
     let (fs, ms) = (flow.as_slice().expect("standard layout"), mask.as_slice().expect("standard layout"));
     let (rate, w) = (cfg.rate, dm.w);
-    let mut out = Array4::<F>::zeros(cfg.out_shape(&dm));
+    let mut out = zeros(cfg.out_shape(&dm));
     {
         let mut blocks = out.view_mut().into_shape_with_order((dm.n, dm.d, dm.h, rate * rate * w)).expect("contiguous");
         blocks.axis_iter_mut(Axis(0)).into_par_iter().enumerate().for_each(|(b, mut bn)| {
@@ -205,7 +205,7 @@ pub fn convex_upsample_bwd<F: Float>(
     );
     let (rate, rr) = (cfg.rate, cfg.rate * cfg.rate);
     let block = rr * w;
-    let mut dmask = Array4::<F>::zeros((n, 9 * rr, h, w));
+    let mut dmask = zeros((n, 9 * rr, h, w));
     // du[((b·h + y)·9 + k)·D + d][x] = dU_k[d, y, x]
     let mut du = vec![F::zero(); n * h * 9 * nd * w];
     dmask.axis_iter_mut(Axis(0)).into_par_iter().zip(du.par_chunks_mut(h * 9 * nd * w)).enumerate().for_each(|(b, (mut dmn, dun))| {
@@ -246,7 +246,7 @@ pub fn convex_upsample_bwd<F: Float>(
         );
     });
     let rate_f = F::from_usize(rate).unwrap_or_else(F::max_value);
-    let mut dflow = Array4::<F>::zeros((n, nd, h, w));
+    let mut dflow = zeros((n, nd, h, w));
     let dfs = dflow.as_slice_mut().expect("fresh array");
     dfs.par_chunks_mut(h * w).enumerate().for_each(|(p, plane)| {
         let (b, ch) = (p / nd, p % nd);
