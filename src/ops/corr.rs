@@ -76,7 +76,7 @@ impl IpCorrCfg {
             return Err(Error::arg(IP, "groups must be positive"));
         }
         let (n, c, h, w) = (fl[0], fl[1], fl[2], fl[3]);
-        if stack[0] != n || stack[2..] != fl[2..] || stack[1] % c != 0 {
+        if stack[0] != n || stack[2..] != fl[2..] || !stack[1].is_multiple_of(c) {
             return Err(Error::shape(IP, "stack must be (N, S*C, h, w) for fl (N, C, h, w)", &shapes));
         }
         if c % self.groups != 0 {
@@ -316,7 +316,7 @@ pub fn rls_corr_bwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, g: Array
                     d.iter_mut().zip(go).zip(&ext[i..]).for_each(|((d, &go), &e)| *d += go * e);
                 }
             }
-            d.iter_mut().for_each(|v| *v = *v * inv);
+            d.iter_mut().for_each(|v| *v *= inv);
         }
     });
     let mut dwarped = zeros((n, c, h, w));
@@ -339,7 +339,7 @@ pub fn rls_corr_bwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, g: Array
             d.copy_from_slice(&ext[rx..rx + w]);
             d[0] += ext[..rx].iter().fold(F::zero(), |a, &v| a + v);
             d[w - 1] += ext[rx + w..].iter().fold(F::zero(), |a, &v| a + v);
-            d.iter_mut().for_each(|v| *v = *v * inv);
+            d.iter_mut().for_each(|v| *v *= inv);
         }
     });
     Ok(RlsCorrGrads { fl: dfl, warped: dwarped })

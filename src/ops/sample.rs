@@ -57,6 +57,11 @@ struct Tap<F> {
     wt: [F; 4],
     /// Bit k set when corner k lies inside the plane.
     inside: u8,
+}
+
+/// What the grid gradient needs beyond the tap.
+#[derive(Clone, Copy, Debug, Default)]
+struct Slope<F> {
     /// Fractional offsets (x - x0, y - y0).
     frac: [F; 2],
     /// d(pixel coordinate)/d(grid value) per axis, 0 where border clamping is active.
@@ -122,7 +127,7 @@ impl<F: Float> Locator<F> {
         [0, 1, self.w, self.w + 1]
     }
 
-    fn tap(&self, gx: F, gy: F) -> Tap<F> {
+    fn tap(&self, gx: F, gy: F) -> (Tap<F>, Slope<F>) {
         let ((x, mx), (y, my)) = (self.ax.locate(gx), self.ay.locate(gy));
         let (x0, y0) = (x.floor(), y.floor());
         // fractions: w = x - x0 (west distance), n = y - y0; e = 1 - w, s = 1 - n
@@ -133,11 +138,16 @@ impl<F: Float> Locator<F> {
         let inside = (xin0 && yin0) as u8 | ((xin1 && yin0) as u8) << 1 | ((xin0 && yin1) as u8) << 2 | ((xin1 && yin1) as u8) << 3;
         // base = y0·w + x0 (wrapping: only corners inside the plane are ever read)
         let base = (iy as usize).wrapping_mul(self.w).wrapping_add(ix as usize);
-        Tap { base, wt: [s * e, s * fw, fnn * e, fnn * fw], inside, frac: [fw, fnn], mult: [mx, my] }
+        (Tap { base, wt: [s * e, s * fw, fnn * e, fnn * fw], inside }, Slope { frac: [fw, fnn], mult: [mx, my] })
     }
 
     /// Taps of a run of grid points stored as (x, y) pairs.
     fn taps(&self, grid: &[F]) -> Vec<Tap<F>> {
+        grid.chunks_exact(2).map(|p| self.tap(p[0], p[1]).0).collect()
+    }
+
+    /// Taps and slopes of a run of grid points.
+    fn taps_slopes(&self, grid: &[F]) -> Vec<(Tap<F>, Slope<F>)> {
         grid.chunks_exact(2).map(|p| self.tap(p[0], p[1])).collect()
     }
 }
@@ -151,6 +161,24 @@ fn corners<F: Float>(plane: &[F], t: &Tap<F>, off: &[usize; 4]) -> [F; 4] {
     } else {
         let v = |k: usize| if t.inside >> k & 1 == 1 { plane[t.base.wrapping_add(off[k])] } else { F::zero() };
         [v(0), v(1), v(2), v(3)]
+    }
+}
+
+/// dx[corner_k] += w_k · g for the corners inside the plane.
+#[inline(always)]
+fn scatter<F: Float>(dp: &mut [F], t: &Tap<F>, off: &[usize; 4], g: F) {
+    if t.inside == ALL_INSIDE {
+        let b = t.base;
+        dp[b] += t.wt[0] * g;
+        dp[b + off[1]] += t.wt[1] * g;
+        dp[b + off[2]] += t.wt[2] * g;
+        dp[b + off[3]] += t.wt[3] * g;
+    } else {
+        for k in 0..4 {
+            if t.inside >> k & 1 == 1 {
+                dp[t.base.wrapping_add(off[k])] += t.wt[k] * g;
+            }
+        }
     }
 }
 
@@ -170,7 +198,7 @@ fn check_grid_sample<'a, F: Float>(x: ArrayViewD<'a, F>, grid: ArrayViewD<'a, F>
 
 /// Channels per work item and output pixels per tile: a tile's taps stay in L1 while a block of
 /// channel planes is swept.
-const TILE: usize = 1024;
+const TILE: usize = 2048;
 
 fn channel_block(c: usize, n: usize) -> usize {
     let items = 4 * rayon::current_num_threads();
@@ -269,13 +297,19 @@ pub fn grid_sample_bwd<F: Float>(
         let taps: Vec<Vec<Tap<F>>> = grs.par_chunks(2 * pix).map(|gr| loc.taps(gr)).collect();
         let mut dx = zeros((n, c, h, w));
         let dxs = dx.as_slice_mut().expect("fresh array");
-        // one (n, c) plane per work item: the scatter order inside a plane is fixed
-        dxs.par_chunks_mut(plane).zip(gs.par_chunks(pix)).enumerate().for_each(|(i, (dp, gp))| {
-            for (tp, &gv) in taps[i / c].iter().zip(gp) {
-                for k in 0..4 {
-                    if tp.inside >> k & 1 == 1 {
-                        // dx[corner_k] += w_k · g
-                        dp[tp.base.wrapping_add(off[k])] += tp.wt[k] * gv;
+        let cb = channel_block(c, n);
+        // work item = (n, block of cb channel planes); within a plane the scatter runs in pixel order
+        let items = dxs.par_chunks_mut(c * plane).enumerate().flat_map(|(b, dn)| {
+            dn.par_chunks_mut(cb * plane).enumerate().map(move |(k, d)| (b, k * cb, d))
+        });
+        items.for_each(|(b, c0, d)| {
+            let t = &taps[b];
+            for p0 in (0..pix).step_by(TILE) {
+                let p1 = (p0 + TILE).min(pix);
+                for (k, dp) in d.chunks_mut(plane).enumerate() {
+                    let gp = &gs[(b * c + c0 + k) * pix..][p0..p1];
+                    for (tp, &gv) in t[p0..p1].iter().zip(gp) {
+                        scatter(dp, tp, &off, gv);
                     }
                 }
             }
@@ -288,22 +322,22 @@ pub fn grid_sample_bwd<F: Float>(
         // one (n, output row) per work item, channels summed in order
         dgs.par_chunks_mut(2 * wo).enumerate().for_each(|(r, drow)| {
             let (b, oy) = (r / ho, r % ho);
-            let taps = loc.taps(&grs[(b * pix + oy * wo) * 2..][..2 * wo]);
+            let taps = loc.taps_slopes(&grs[(b * pix + oy * wo) * 2..][..2 * wo]);
             let mut acc = vec![[F::zero(); 2]; wo];
             for ch in 0..c {
                 let xp = &xs[(b * c + ch) * plane..][..plane];
                 let grow = &gs[(b * c + ch) * pix + oy * wo..][..wo];
-                for ((a, tp), &gv) in acc.iter_mut().zip(&taps).zip(grow) {
+                for ((a, (tp, sl)), &gv) in acc.iter_mut().zip(&taps).zip(grow) {
                     let v = corners(xp, tp, &off);
-                    let [fx, fy] = tp.frac;
+                    let [fx, fy] = sl.frac;
                     // ∂out/∂x = (ne - nw)(1 - fy) + (se - sw) fy;  ∂out/∂y = (sw - nw)(1 - fx) + (se - ne) fx
                     a[0] += ((v[1] - v[0]) * (F::one() - fy) + (v[3] - v[2]) * fy) * gv;
                     a[1] += ((v[2] - v[0]) * (F::one() - fx) + (v[3] - v[1]) * fx) * gv;
                 }
             }
-            for ((d, a), tp) in drow.chunks_exact_mut(2).zip(&acc).zip(&taps) {
-                d[0] = a[0] * tp.mult[0];
-                d[1] = a[1] * tp.mult[1];
+            for ((d, a), (_, sl)) in drow.chunks_exact_mut(2).zip(&acc).zip(&taps) {
+                d[0] = a[0] * sl.mult[0];
+                d[1] = a[1] * sl.mult[1];
             }
         });
         dg

@@ -89,7 +89,7 @@ impl<F: Float> RowCtx<F> {
             }
             for wk in wij.chunks_mut(w) {
                 // softmax_k = e_k / Σ e
-                wk.iter_mut().zip(&sum).for_each(|(e, &s)| *e = *e / s);
+                wk.iter_mut().zip(&sum).for_each(|(e, &s)| *e /= s);
             }
         }
         RowCtx { wts, nb }
