@@ -123,4 +123,6 @@ fn rls_corr_rejects_mismatched_shapes_and_grad() {
     assert!(err.contains("rls_correlation") && err.contains("21") && err.contains("[1, 20, 3, 4]"), "{err}");
     let r5 = ArrayD::<f32>::zeros(IxDyn(&[8, 3, 4]));
     assert!(rls_corr_fwd(r5.view(), r5.view(), &cfg).unwrap_err().to_string().contains("[8, 3, 4]"));
+    let err = rls_corr_fwd(fl.view(), fl.view(), &RlsCorrCfg { rx: usize::MAX / 2, ry: 1 }).unwrap_err().to_string();
+    assert!(err.contains("rls_correlation") && err.contains("too large"), "{err}");
 }

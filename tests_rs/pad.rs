@@ -69,4 +69,10 @@ fn pad2d_rejects_bad_rank_pad_and_grad() {
     let g = ArrayD::<f32>::zeros(IxDyn(&[1, 2, 6, 6]));
     let err = pad2d_bwd(g.view(), (4, 5), &cfg([1, 1, 1, 1], PadMode::Replicate, 0.0)).unwrap_err().to_string();
     assert!(err.contains("pad") && err.contains("[1, 2, 6, 6]") && err.contains("[4, 5]"), "{err}");
+    let huge = Pad2dCfg::new(&[i64::MAX, i64::MAX, 0, 0], PadMode::Zero, 0.0).unwrap();
+    let ok = ArrayD::<f32>::zeros(IxDyn(&[1, 1, 2, 2]));
+    assert!(pad2d_fwd(ok.view(), &huge).unwrap_err().to_string().contains("overflows"));
+    let big = Pad2dCfg::new(&[1 << 40, 1 << 40, 0, 0], PadMode::Zero, 0.0).unwrap();
+    let err = pad2d_fwd(ok.view(), &big).unwrap_err().to_string();
+    assert!(err.contains("pad") && err.contains("too large to allocate"), "{err}");
 }

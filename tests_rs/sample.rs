@@ -170,6 +170,9 @@ fn interpolate_rejects_zero_size_and_mismatched_grad() {
     assert!(err.contains("interpolate") && err.contains("[1, 2, 6, 7]"), "{err}");
     let x3 = ArrayD::<f32>::zeros(IxDyn(&[2, 3, 4]));
     assert!(interpolate_bilinear_fwd(x3.view(), &cfg).unwrap_err().to_string().contains("[2, 3, 4]"));
+    let huge = InterpCfg { out_hw: (1 << 40, 1 << 40), align_corners: true, scales: [None, None] };
+    let err = interpolate_bilinear_fwd(x.view(), &huge).unwrap_err().to_string();
+    assert!(err.contains("interpolate") && err.contains("too large to allocate"), "{err}");
 }
 
 fn ucfg(k: [usize; 2], d: [usize; 2], p: [usize; 2], s: [usize; 2]) -> UnfoldCfg {
@@ -220,4 +223,9 @@ fn unfold_fold_reject_large_kernel_zero_stride_and_bad_columns() {
     assert!(err.contains("fold") && err.contains("[1, 18, 5]") && err.contains("[2, 2]"), "{err}");
     let cols = ArrayD::<f32>::zeros(IxDyn(&[1, 10, 4]));
     assert!(fold_fwd(cols.view(), (2, 2), &ucfg([3, 3], [1, 1], [1, 1], [1, 1])).unwrap_err().to_string().contains("[1, 10, 4]"));
+    // absurd padding / kernels fail with an error, never an overflow
+    let err = unfold_fwd(x.view(), &ucfg([1 << 40, 1 << 40], [1, 1], [1 << 40, 1 << 40], [1, 1])).unwrap_err().to_string();
+    assert!(err.contains("unfold") && (err.contains("too large") || err.contains("overflow")), "{err}");
+    let err = unfold_fwd(x.view(), &ucfg([3, 3], [usize::MAX, 1], [usize::MAX, 1], [1, 1])).unwrap_err().to_string();
+    assert!(err.contains("unfold"), "{err}");
 }

@@ -68,6 +68,8 @@ fn convex_upsample_rejects_bad_mask_rate_and_grad() {
     let mask = ArrayD::<f32>::zeros(IxDyn(&[1, 144, 3, 4]));
     let err = convex_upsample_fwd(flow.view(), mask.view(), &ConvexUpsampleCfg { rate: 0 }).unwrap_err().to_string();
     assert!(err.contains("convex_upsample") && err.contains("rate"), "{err}");
+    let err = convex_upsample_fwd(flow.view(), mask.view(), &ConvexUpsampleCfg { rate: 1 << 33 }).unwrap_err().to_string();
+    assert!(err.contains("convex_upsample") && err.contains("too large"), "{err}");
     let g = ArrayD::<f32>::zeros(IxDyn(&[1, 2, 12, 15]));
     let err = convex_upsample_bwd(flow.view(), mask.view(), g.view(), &ConvexUpsampleCfg { rate: 4 }).unwrap_err().to_string();
     assert!(err.contains("convex_upsample") && err.contains("[1, 2, 12, 15]"), "{err}");
