@@ -82,3 +82,10 @@ def test_correlation_errors_name_op_and_shapes():
         M.rls_correlation(z, z)
     with pytest.raises(mipnet.errors.DTypeError, match=r"rls_correlation.*float32\[1, 8, 3, 4\].*float64"):
         M.rls_correlation(fl, mipnet.tensor(rand((1, 8, 3, 4), np.float64)))
+
+
+def test_correlations_at_model_channel_counts_float32():
+    # the model's widths (C = 256, S = 5, G = 2; 21 RLS candidates) at a small 1/16-level size
+    fl, st, wp = rand((1, 256, 6, 8)), rand((1, 1280, 6, 8), seed=1), rand((1, 256, 6, 8), seed=2)
+    check_op([fl, st], ip_torch, lambda a, b: M.ip_correlation(a, b))
+    check_op([fl, wp], rls_torch, lambda a, b: M.rls_correlation(a, b))

@@ -163,3 +163,10 @@ def test_unfold_fold_errors():
         M.fold(mipnet.tensor(rand((1, 18, 4))), (2, 2), 5)
     with pytest.raises(RuntimeError, match=r"unfold.*empty.*\[1, 0, 3, 3\]"):
         M.unfold(mipnet.tensor(np.zeros((1, 0, 3, 3), np.float32)), 3)
+
+
+def test_grid_sample_warp_of_the_1280_channel_stack_float32():
+    flow = np.stack([-rand((1, 6, 10), np.float32, 0, 7, seed=8), np.zeros((1, 6, 10), np.float32)], 1)
+    grid = _warp(lambda f, g: g, None, flow)
+    check_op([rand((1, 1280, 6, 10)), grid], lambda x, g: F.grid_sample(x, g, padding_mode="border", align_corners=True),
+             lambda x, g: M.grid_sample(x, g, padding_mode="border", align_corners=True))
