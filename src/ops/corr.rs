@@ -8,7 +8,7 @@
 //!
 //! Work is split by (n, row) of the result being written, so every sum runs in a fixed order.
 
-use crate::tensor::{check_nonempty, fixed};
+use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, ArrayViewMut2, Axis, Ix4};
 use rayon::prelude::*;
@@ -16,6 +16,7 @@ use rayon::prelude::*;
 /// The contiguous row `y` of channel `ch` of batch element `b` in a standard-layout (N, C, h, w) slice.
 #[inline(always)]
 fn row<F>(s: &[F], c: usize, h: usize, w: usize, b: usize, ch: usize, y: usize) -> &[F] {
+    // offset = ((b·C + ch)·h + y)·w
     &s[((b * c + ch) * h + y) * w..][..w]
 }
 
@@ -76,7 +77,7 @@ impl IpCorrCfg {
             return Err(Error::arg(IP, "groups must be positive"));
         }
         let (n, c, h, w) = (fl[0], fl[1], fl[2], fl[3]);
-        if stack[0] != n || stack[2..] != fl[2..] || stack[1] % c != 0 {
+        if stack[0] != n || stack[2..] != fl[2..] || !stack[1].is_multiple_of(c) {
             return Err(Error::shape(IP, "stack must be (N, S*C, h, w) for fl (N, C, h, w)", &shapes));
         }
         if c % self.groups != 0 {
@@ -96,6 +97,9 @@ fn ip_inputs<'a, F>(fl: ArrayViewD<'a, F>, stack: ArrayViewD<'a, F>) -> Result<(
 /// fl (N, C, h, w), stack (N, S·C, h, w) -> (N, G·S, h, w), with
 /// out[S·g + s] = (G/C) Σ_{k < C/G} fl[g·C/G + k] · stack[s·C + g·C/G + k].
 ///
+/// # Gradient
+/// fl and stack: see [`ip_corr_bwd`] (each operand gets g times the other, divided by C/G).
+///
 /// Torch: `(stack.view(N,S,G,C//G,h,w) * fl.view(N,1,G,C//G,h,w)).mean(3).permute(0,2,1,3,4).reshape(N,G*S,h,w)`.
 pub fn ip_corr_fwd<F: Float>(fl: ArrayViewD<F>, stack: ArrayViewD<F>, cfg: &IpCorrCfg) -> Result<Array4<F>> {
     let (fl, stack) = ip_inputs(fl, stack)?;
@@ -103,7 +107,7 @@ pub fn ip_corr_fwd<F: Float>(fl: ArrayViewD<F>, stack: ArrayViewD<F>, cfg: &IpCo
     let (fl, stack) = (fl.as_standard_layout(), stack.as_standard_layout());
     let (fs, ss) = (fl.as_slice().expect("standard layout"), stack.as_slice().expect("standard layout"));
     let inv = F::one() / F::from_usize(d.cg).unwrap_or_else(F::max_value);
-    let mut out = Array4::<F>::zeros((d.n, cfg.groups * d.s, d.h, d.w));
+    let mut out = zeros(IP, (d.n, cfg.groups * d.s, d.h, d.w))?;
     for_each_row(&mut out, |b, y, mut orow| {
         let mut acc = vec![F::zero(); d.s * d.w];
         for g in 0..cfg.groups {
@@ -160,8 +164,8 @@ pub fn ip_corr_bwd<F: Float>(fl: ArrayViewD<F>, stack: ArrayViewD<F>, g: ArrayVi
     );
     let inv = F::one() / F::from_usize(d.cg).unwrap_or_else(F::max_value);
     let gsz = cfg.groups * d.s;
-    let mut dfl = Array4::<F>::zeros((d.n, d.c, d.h, d.w));
-    let mut dstack = Array4::<F>::zeros((d.n, d.s * d.c, d.h, d.w));
+    let mut dfl = zeros(IP, (d.n, d.c, d.h, d.w))?;
+    let mut dstack = zeros(IP, (d.n, d.s * d.c, d.h, d.w))?;
     for_each_row2(&mut dfl, &mut dstack, |b, y, mut dfrow, mut dsrow| {
         for g_ in 0..cfg.groups {
             for k in 0..d.cg {
@@ -201,6 +205,14 @@ impl RlsCorrCfg {
         (2 * self.rx + 1) * (2 * self.ry + 1)
     }
 
+    /// Fails if (2rx+1)(2ry+1) overflows.
+    fn check(&self) -> Result<()> {
+        let side = |r: usize| r.checked_mul(2)?.checked_add(1);
+        side(self.rx).zip(side(self.ry)).and_then(|(a, b)| a.checked_mul(b)).map(|_| ()).ok_or_else(|| {
+            Error::arg(RLS, format!("search radii rx={} ry={} are too large", self.rx, self.ry))
+        })
+    }
+
     /// Output channel of horizontal shift i (outer) and vertical shift j (inner).
     fn chan(&self, i: usize, j: usize) -> usize {
         // k = (2ry+1)·i + j
@@ -221,7 +233,8 @@ impl RlsCorrCfg {
     }
 }
 
-fn rls_inputs<'a, F>(fl: ArrayViewD<'a, F>, warped: ArrayViewD<'a, F>) -> Result<(ArrayView4<'a, F>, ArrayView4<'a, F>)> {
+fn rls_inputs<'a, F>(fl: ArrayViewD<'a, F>, warped: ArrayViewD<'a, F>, cfg: &RlsCorrCfg) -> Result<(ArrayView4<'a, F>, ArrayView4<'a, F>)> {
+    cfg.check()?;
     let (fl, warped) = (fixed::<_, Ix4>(RLS, "fl", fl)?, fixed::<_, Ix4>(RLS, "warped", warped)?);
     let shapes = [("fl", fl.shape()), ("warped", warped.shape())];
     check_nonempty(RLS, &shapes)?;
@@ -238,15 +251,18 @@ fn rls_inputs<'a, F>(fl: ArrayViewD<'a, F>, warped: ArrayViewD<'a, F>) -> Result
 /// fl (N, C, h, w), warped (N, C, h, w) -> (N, (2rx+1)(2ry+1), h, w), with
 /// out[(2ry+1)·i + j, y, x] = (1/C) Σ_c fl[c, y, x] · warped[c, clamp(y + j - ry), clamp(x + i - rx)].
 ///
+/// # Gradient
+/// fl and warped: see [`rls_corr_bwd`] (products with g, the warped one scattered back through the clamp).
+///
 /// Torch: `P = F.pad(warped, [rx, rx, ry, ry], mode='replicate')`, then for i (outer), j (inner):
 /// `(fl * P[:, :, j:j+h, i:i+w]).mean(1, keepdim=True)`, concatenated along dim 1.
 pub fn rls_corr_fwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, cfg: &RlsCorrCfg) -> Result<Array4<F>> {
-    let (fl, warped) = rls_inputs(fl, warped)?;
+    let (fl, warped) = rls_inputs(fl, warped, cfg)?;
     let (n, c, h, w) = fl.dim();
     let (fl, warped) = (fl.as_standard_layout(), warped.as_standard_layout());
     let (fs, ws) = (fl.as_slice().expect("standard layout"), warped.as_slice().expect("standard layout"));
     let inv = F::one() / F::from_usize(c).unwrap_or_else(F::max_value);
-    let mut out = Array4::<F>::zeros((n, cfg.candidates(), h, w));
+    let mut out = zeros(RLS, (n, cfg.candidates(), h, w))?;
     for_each_row(&mut out, |b, y, mut orow| {
         let mut ext = vec![F::zero(); w + 2 * cfg.rx];
         for j in 0..2 * cfg.ry + 1 {
@@ -285,7 +301,7 @@ pub struct RlsCorrGrads<F> {
 ///
 /// Torch: the backward of the pad/slice/mul/mean loop of [`rls_corr_fwd`].
 pub fn rls_corr_bwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &RlsCorrCfg) -> Result<RlsCorrGrads<F>> {
-    let (fl, warped) = rls_inputs(fl, warped)?;
+    let (fl, warped) = rls_inputs(fl, warped, cfg)?;
     let (n, c, h, w) = fl.dim();
     let k = cfg.candidates();
     if g.shape() != [n, k, h, w] {
@@ -303,7 +319,7 @@ pub fn rls_corr_bwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, g: Array
     );
     let inv = F::one() / F::from_usize(c).unwrap_or_else(F::max_value);
     let (nx, ny, rx) = (2 * cfg.rx + 1, 2 * cfg.ry + 1, cfg.rx);
-    let mut dfl = Array4::<F>::zeros((n, c, h, w));
+    let mut dfl = zeros(RLS, (n, c, h, w))?;
     for_each_row(&mut dfl, |b, y, mut drow| {
         let mut ext = vec![F::zero(); w + 2 * rx];
         for ch in 0..c {
@@ -316,10 +332,10 @@ pub fn rls_corr_bwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, g: Array
                     d.iter_mut().zip(go).zip(&ext[i..]).for_each(|((d, &go), &e)| *d += go * e);
                 }
             }
-            d.iter_mut().for_each(|v| *v = *v * inv);
+            d.iter_mut().for_each(|v| *v *= inv);
         }
     });
-    let mut dwarped = Array4::<F>::zeros((n, c, h, w));
+    let mut dwarped = zeros(RLS, (n, c, h, w))?;
     for_each_row(&mut dwarped, |b, yt, mut drow| {
         // the (y, j) whose clamped source row is yt
         let sources: Vec<(usize, usize)> = (0..h).flat_map(|y| (0..ny).map(move |j| (y, j))).filter(|&(y, j)| cfg.src_row(y, j, h) == yt).collect();
@@ -339,7 +355,7 @@ pub fn rls_corr_bwd<F: Float>(fl: ArrayViewD<F>, warped: ArrayViewD<F>, g: Array
             d.copy_from_slice(&ext[rx..rx + w]);
             d[0] += ext[..rx].iter().fold(F::zero(), |a, &v| a + v);
             d[w - 1] += ext[rx + w..].iter().fold(F::zero(), |a, &v| a + v);
-            d.iter_mut().for_each(|v| *v = *v * inv);
+            d.iter_mut().for_each(|v| *v *= inv);
         }
     });
     Ok(RlsCorrGrads { fl: dfl, warped: dwarped })

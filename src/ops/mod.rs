@@ -15,8 +15,8 @@
 //! | softmax along an axis | `softmax::softmax_fwd` | `softmax::softmax_bwd` (x, from y) | `torch.softmax` |
 //! | pad (zeros / replicate) | `pad::pad2d_fwd` | `pad::pad2d_bwd` (x) | `F.pad` |
 //! | grid_sample (bilinear; zeros / border; align_corners) | `sample::grid_sample_fwd` | `sample::grid_sample_bwd` (x, grid) | `F.grid_sample` |
-//! | interpolate bilinear (align_corners=True) | `sample::interpolate_bilinear_fwd` | `sample::interpolate_bilinear_bwd` (x) | `F.interpolate` |
-//! | unfold / fold | `sample::unfold_fwd`, `sample::fold_fwd` | each other | `F.unfold`, `F.fold` |
+//! | interpolate bilinear (align_corners True / False) | `sample::interpolate_bilinear_fwd` | `sample::interpolate_bilinear_bwd` (x) | `F.interpolate` |
+//! | unfold / fold (any kernel, dilation, zero padding, stride) | `sample::unfold_fwd`, `sample::fold_fwd` | each other | `F.unfold`, `F.fold` |
 //! | IP correlation (seed stack, grouped channel mean) | `corr::ip_corr_fwd` | `corr::ip_corr_bwd` (fl, stack) | view/mul/mean (spec a.6) |
 //! | RLS correlation (rx x ry window) | `corr::rls_corr_fwd` | `corr::rls_corr_bwd` (fl, warped) | pad/slice/mul/mean (spec a.7) |
 //! | convex x4 upsampling | `upsample::convex_upsample_fwd` | `upsample::convex_upsample_bwd` (flow, mask) | softmax/unfold/sum (spec a.9) |

@@ -5,7 +5,7 @@
 //! | pad2d, constant | `pad2d_fwd`: border filled with `value` | `pad2d_bwd`: the interior window of g |
 //! | pad2d, replicate | `pad2d_fwd`: border copies the nearest edge pixel | `pad2d_bwd`: border grads summed into edge pixels |
 
-use crate::tensor::{check_nonempty, fixed};
+use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, Ix4};
 use rayon::prelude::*;
@@ -53,10 +53,11 @@ impl Pad2dCfg {
         Ok(Pad2dCfg { pad: p.map(|v| v as usize), mode, value })
     }
 
-    /// (H + top + bottom, W + left + right).
-    pub fn out_hw(&self, h: usize, w: usize) -> (usize, usize) {
+    /// (H + top + bottom, W + left + right), or an error if that overflows.
+    pub fn out_hw(&self, h: usize, w: usize) -> Result<(usize, usize)> {
         let [l, r, t, b] = self.pad;
-        (h + t + b, w + l + r)
+        let add = |a: usize, p: usize, q: usize| a.checked_add(p)?.checked_add(q);
+        add(h, t, b).zip(add(w, l, r)).ok_or_else(|| Error::arg(OP, format!("padding {:?} of a {h}x{w} input overflows", self.pad)))
     }
 
     /// The input index feeding padded index `o` along an axis of size `n` padded by `before` on its
@@ -83,17 +84,19 @@ fn input4<'a, F>(x: ArrayViewD<'a, F>) -> Result<ArrayView4<'a, F>> {
 /// # Shapes
 /// x (N, C, H, W) -> (N, C, H + top + bottom, W + left + right).
 ///
+/// # Gradient
+/// x: see [`pad2d_bwd`] (interior window of g; replicate also sums the border into the edges).
+///
 /// Torch: `F.pad(x, [l, r, t, b], mode='constant', value=v)` / `mode='replicate'`.
 pub fn pad2d_fwd<F: Float>(x: ArrayViewD<F>, cfg: &Pad2dCfg) -> Result<Array4<F>> {
     let x = input4(x)?;
     let x = x.as_standard_layout();
     let (n, c, h, w) = x.dim();
-    let (ho, wo) = cfg.out_hw(h, w);
+    let (ho, wo) = cfg.out_hw(h, w)?;
     let (top, left) = (cfg.pad[2], cfg.pad[0]);
-    let cols: Vec<Option<usize>> = (0..wo).map(|ox| cfg.source(ox, left, w)).collect();
     let fill = F::c(cfg.value);
     let src = x.as_slice().expect("standard layout");
-    let mut out = Array4::<F>::zeros((n, c, ho, wo));
+    let mut out = zeros(OP, (n, c, ho, wo))?;
     let dst = out.as_slice_mut().expect("fresh array");
     dst.par_chunks_mut(ho * wo).zip(src.par_chunks(h * w)).for_each(|(o, xp)| {
         for (oy, orow) in o.chunks_mut(wo).enumerate() {
@@ -101,9 +104,10 @@ pub fn pad2d_fwd<F: Float>(x: ArrayViewD<F>, cfg: &Pad2dCfg) -> Result<Array4<F>
                 orow.fill(fill);
                 continue;
             };
+            // input row iy occupies [iy·W, (iy+1)·W) of the plane
             let xrow = &xp[iy * w..(iy + 1) * w];
-            for (ov, col) in orow.iter_mut().zip(&cols) {
-                *ov = col.map_or(fill, |ix| xrow[ix]);
+            for (ox, ov) in orow.iter_mut().enumerate() {
+                *ov = cfg.source(ox, left, w).map_or(fill, |ix| xrow[ix]);
             }
         }
     });
@@ -125,7 +129,7 @@ pub fn pad2d_bwd<F: Float>(g: ArrayViewD<F>, input_hw: (usize, usize), cfg: &Pad
     let g = fixed::<_, Ix4>(OP, "grad_output", g)?;
     let (h, w) = input_hw;
     let (n, c, gh, gw) = g.dim();
-    let (ho, wo) = cfg.out_hw(h, w);
+    let (ho, wo) = cfg.out_hw(h, w)?;
     if (gh, gw) != (ho, wo) || h == 0 || w == 0 {
         return Err(Error::shape(OP, format!("grad_output does not match a padded input of size {h}x{w}"), &[
             ("grad_output", g.shape()),
@@ -134,17 +138,17 @@ pub fn pad2d_bwd<F: Float>(g: ArrayViewD<F>, input_hw: (usize, usize), cfg: &Pad
     }
     let g = g.as_standard_layout();
     let (top, left) = (cfg.pad[2], cfg.pad[0]);
-    let cols: Vec<Option<usize>> = (0..wo).map(|ox| cfg.source(ox, left, w)).collect();
     let src = g.as_slice().expect("standard layout");
-    let mut dx = Array4::<F>::zeros((n, c, h, w));
+    let mut dx = zeros(OP, (n, c, h, w))?;
     let dst = dx.as_slice_mut().expect("fresh array");
     dst.par_chunks_mut(h * w).zip(src.par_chunks(ho * wo)).for_each(|(d, gp)| {
         for (oy, grow) in gp.chunks(wo).enumerate() {
             let Some(iy) = cfg.source(oy, top, h) else { continue };
+            // dx row iy occupies [iy·W, (iy+1)·W) of the plane
             let drow = &mut d[iy * w..(iy + 1) * w];
-            for (&gv, col) in grow.iter().zip(&cols) {
-                if let Some(ix) = col {
-                    drow[*ix] += gv;
+            for (ox, &gv) in grow.iter().enumerate() {
+                if let Some(ix) = cfg.source(ox, left, w) {
+                    drow[ix] += gv;
                 }
             }
         }

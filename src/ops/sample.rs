@@ -10,7 +10,7 @@
 //! Every scatter-style backward owns whole (n, c) planes of its result, so sums run in a fixed order
 //! and results do not depend on the thread count.
 
-use crate::tensor::{check_nonempty, fixed};
+use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array3, Array4, ArrayView4, ArrayViewD, Ix3, Ix4};
 use rayon::prelude::*;
@@ -57,6 +57,11 @@ struct Tap<F> {
     wt: [F; 4],
     /// Bit k set when corner k lies inside the plane.
     inside: u8,
+}
+
+/// What the grid gradient needs beyond the tap.
+#[derive(Clone, Copy, Debug, Default)]
+struct Slope<F> {
     /// Fractional offsets (x - x0, y - y0).
     frac: [F; 2],
     /// d(pixel coordinate)/d(grid value) per axis, 0 where border clamping is active.
@@ -122,7 +127,7 @@ impl<F: Float> Locator<F> {
         [0, 1, self.w, self.w + 1]
     }
 
-    fn tap(&self, gx: F, gy: F) -> Tap<F> {
+    fn tap(&self, gx: F, gy: F) -> (Tap<F>, Slope<F>) {
         let ((x, mx), (y, my)) = (self.ax.locate(gx), self.ay.locate(gy));
         let (x0, y0) = (x.floor(), y.floor());
         // fractions: w = x - x0 (west distance), n = y - y0; e = 1 - w, s = 1 - n
@@ -133,11 +138,16 @@ impl<F: Float> Locator<F> {
         let inside = (xin0 && yin0) as u8 | ((xin1 && yin0) as u8) << 1 | ((xin0 && yin1) as u8) << 2 | ((xin1 && yin1) as u8) << 3;
         // base = y0·w + x0 (wrapping: only corners inside the plane are ever read)
         let base = (iy as usize).wrapping_mul(self.w).wrapping_add(ix as usize);
-        Tap { base, wt: [s * e, s * fw, fnn * e, fnn * fw], inside, frac: [fw, fnn], mult: [mx, my] }
+        (Tap { base, wt: [s * e, s * fw, fnn * e, fnn * fw], inside }, Slope { frac: [fw, fnn], mult: [mx, my] })
     }
 
     /// Taps of a run of grid points stored as (x, y) pairs.
     fn taps(&self, grid: &[F]) -> Vec<Tap<F>> {
+        grid.chunks_exact(2).map(|p| self.tap(p[0], p[1]).0).collect()
+    }
+
+    /// Taps and slopes of a run of grid points.
+    fn taps_slopes(&self, grid: &[F]) -> Vec<(Tap<F>, Slope<F>)> {
         grid.chunks_exact(2).map(|p| self.tap(p[0], p[1])).collect()
     }
 }
@@ -151,6 +161,24 @@ fn corners<F: Float>(plane: &[F], t: &Tap<F>, off: &[usize; 4]) -> [F; 4] {
     } else {
         let v = |k: usize| if t.inside >> k & 1 == 1 { plane[t.base.wrapping_add(off[k])] } else { F::zero() };
         [v(0), v(1), v(2), v(3)]
+    }
+}
+
+/// dx(corner_k) += w_k · g for the corners inside the plane.
+#[inline(always)]
+fn scatter<F: Float>(dp: &mut [F], t: &Tap<F>, off: &[usize; 4], g: F) {
+    if t.inside == ALL_INSIDE {
+        let b = t.base;
+        dp[b] += t.wt[0] * g;
+        dp[b + off[1]] += t.wt[1] * g;
+        dp[b + off[2]] += t.wt[2] * g;
+        dp[b + off[3]] += t.wt[3] * g;
+    } else {
+        for k in 0..4 {
+            if t.inside >> k & 1 == 1 {
+                dp[t.base.wrapping_add(off[k])] += t.wt[k] * g;
+            }
+        }
     }
 }
 
@@ -170,7 +198,7 @@ fn check_grid_sample<'a, F: Float>(x: ArrayViewD<'a, F>, grid: ArrayViewD<'a, F>
 
 /// Channels per work item and output pixels per tile: a tile's taps stay in L1 while a block of
 /// channel planes is swept.
-const TILE: usize = 1024;
+const TILE: usize = 2048;
 
 fn channel_block(c: usize, n: usize) -> usize {
     let items = 4 * rayon::current_num_threads();
@@ -181,6 +209,9 @@ fn channel_block(c: usize, n: usize) -> usize {
 ///
 /// # Shapes
 /// x (N, C, H, W), grid (N, H_out, W_out, 2) -> (N, C, H_out, W_out).
+///
+/// # Gradient
+/// input and grid: see [`grid_sample_bwd`] (scatter of the bilinear weights; Σ_c g · ∂sample/∂(x, y) · scale).
 ///
 /// Torch: `F.grid_sample(x, grid, mode='bilinear', padding_mode='zeros'|'border', align_corners=a)`.
 pub fn grid_sample_fwd<F: Float>(x: ArrayViewD<F>, grid: ArrayViewD<F>, cfg: &GridSampleCfg) -> Result<Array4<F>> {
@@ -194,7 +225,7 @@ pub fn grid_sample_fwd<F: Float>(x: ArrayViewD<F>, grid: ArrayViewD<F>, cfg: &Gr
     let gs = grid.as_slice().expect("standard layout");
     let taps: Vec<Vec<Tap<F>>> = gs.par_chunks(2 * pix).map(|g| loc.taps(g)).collect();
     let xs = x.as_slice().expect("standard layout");
-    let mut out = Array4::<F>::zeros((n, c, ho, wo));
+    let mut out = zeros(GS, (n, c, ho, wo))?;
     let cb = channel_block(c, n);
     let os = out.as_slice_mut().expect("fresh array");
     // work item = (n, block of cb channels); a block never straddles two batch elements
@@ -206,6 +237,7 @@ pub fn grid_sample_fwd<F: Float>(x: ArrayViewD<F>, grid: ArrayViewD<F>, cfg: &Gr
         for p0 in (0..pix).step_by(TILE) {
             let p1 = (p0 + TILE).min(pix);
             for (k, orow) in o.chunks_mut(pix).enumerate() {
+                // input plane (b, c0 + k) starts at ((b·C + c0 + k)·H·W)
                 let xp = &xs[(b * c + c0 + k) * plane..][..plane];
                 for (ov, tp) in orow[p0..p1].iter_mut().zip(&t[p0..p1]) {
                     let v = corners(xp, tp, &off);
@@ -232,7 +264,7 @@ pub struct GridSampleGrads<F> {
 /// grid (N, H_out, W_out, 2).
 ///
 /// # Gradient
-/// input: dx[corner_k] += w_k · g (scatter-add of the bilinear weights, per (n, c) plane);
+/// input: dx(corner_k) += w_k · g (scatter-add of the bilinear weights, per (n, c) plane);
 /// grid: d/dgx = Σ_c g · ((ne - nw)(1 - fy) + (se - sw) fy) · dx/dgx and
 /// d/dgy = Σ_c g · ((sw - nw)(1 - fx) + (se - ne) fx) · dy/dgy, with dx/dgx = (W-1)/2 (align_corners)
 /// or W/2, and 0 where border padding clamps the coordinate (on or beyond the border).
@@ -265,50 +297,59 @@ pub fn grid_sample_bwd<F: Float>(
         g.as_slice().expect("standard layout"),
         grid.as_slice().expect("standard layout"),
     );
-    let dinput = need_input.then(|| {
+    let dinput = need_input.then(|| -> Result<Array4<F>> {
         let taps: Vec<Vec<Tap<F>>> = grs.par_chunks(2 * pix).map(|gr| loc.taps(gr)).collect();
-        let mut dx = Array4::<F>::zeros((n, c, h, w));
+        let mut dx = zeros(GS, (n, c, h, w))?;
         let dxs = dx.as_slice_mut().expect("fresh array");
-        // one (n, c) plane per work item: the scatter order inside a plane is fixed
-        dxs.par_chunks_mut(plane).zip(gs.par_chunks(pix)).enumerate().for_each(|(i, (dp, gp))| {
-            for (tp, &gv) in taps[i / c].iter().zip(gp) {
-                for k in 0..4 {
-                    if tp.inside >> k & 1 == 1 {
-                        // dx[corner_k] += w_k · g
-                        dp[tp.base.wrapping_add(off[k])] += tp.wt[k] * gv;
+        let cb = channel_block(c, n);
+        // work item = (n, block of cb channel planes); within a plane the scatter runs in pixel order
+        let items = dxs.par_chunks_mut(c * plane).enumerate().flat_map(|(b, dn)| {
+            dn.par_chunks_mut(cb * plane).enumerate().map(move |(k, d)| (b, k * cb, d))
+        });
+        items.for_each(|(b, c0, d)| {
+            let t = &taps[b];
+            for p0 in (0..pix).step_by(TILE) {
+                let p1 = (p0 + TILE).min(pix);
+                for (k, dp) in d.chunks_mut(plane).enumerate() {
+                    // grad plane (b, c0 + k) starts at ((b·C + c0 + k)·H_out·W_out)
+                    let gp = &gs[(b * c + c0 + k) * pix..][p0..p1];
+                    for (tp, &gv) in t[p0..p1].iter().zip(gp) {
+                        scatter(dp, tp, &off, gv);
                     }
                 }
             }
         });
-        dx
+        Ok(dx)
     });
-    let dgrid = need_grid.then(|| {
-        let mut dg = Array4::<F>::zeros((n, ho, wo, 2));
+    let dgrid = need_grid.then(|| -> Result<Array4<F>> {
+        let mut dg = zeros(GS, (n, ho, wo, 2))?;
         let dgs = dg.as_slice_mut().expect("fresh array");
         // one (n, output row) per work item, channels summed in order
         dgs.par_chunks_mut(2 * wo).enumerate().for_each(|(r, drow)| {
             let (b, oy) = (r / ho, r % ho);
-            let taps = loc.taps(&grs[(b * pix + oy * wo) * 2..][..2 * wo]);
+            // grid row (b, oy) starts at ((b·H_out + oy)·W_out)·2
+            let taps = loc.taps_slopes(&grs[(b * pix + oy * wo) * 2..][..2 * wo]);
             let mut acc = vec![[F::zero(); 2]; wo];
             for ch in 0..c {
+                // plane (b, ch) of x, and row oy of plane (b, ch) of g
                 let xp = &xs[(b * c + ch) * plane..][..plane];
                 let grow = &gs[(b * c + ch) * pix + oy * wo..][..wo];
-                for ((a, tp), &gv) in acc.iter_mut().zip(&taps).zip(grow) {
+                for ((a, (tp, sl)), &gv) in acc.iter_mut().zip(&taps).zip(grow) {
                     let v = corners(xp, tp, &off);
-                    let [fx, fy] = tp.frac;
+                    let [fx, fy] = sl.frac;
                     // ∂out/∂x = (ne - nw)(1 - fy) + (se - sw) fy;  ∂out/∂y = (sw - nw)(1 - fx) + (se - ne) fx
                     a[0] += ((v[1] - v[0]) * (F::one() - fy) + (v[3] - v[2]) * fy) * gv;
                     a[1] += ((v[2] - v[0]) * (F::one() - fx) + (v[3] - v[1]) * fx) * gv;
                 }
             }
-            for ((d, a), tp) in drow.chunks_exact_mut(2).zip(&acc).zip(&taps) {
-                d[0] = a[0] * tp.mult[0];
-                d[1] = a[1] * tp.mult[1];
+            for ((d, a), (_, sl)) in drow.chunks_exact_mut(2).zip(&acc).zip(&taps) {
+                d[0] = a[0] * sl.mult[0];
+                d[1] = a[1] * sl.mult[1];
             }
         });
-        dg
+        Ok(dg)
     });
-    Ok(GridSampleGrads { input: dinput, grid: dgrid })
+    Ok(GridSampleGrads { input: dinput.transpose()?, grid: dgrid.transpose()? })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -375,18 +416,22 @@ impl InterpCfg {
 /// # Shapes
 /// x (N, C, H, W) -> (N, C, H_out, W_out).
 ///
+/// # Gradient
+/// x: see [`interpolate_bilinear_bwd`] (scatter of ly·lx·g onto the 4 source pixels).
+///
 /// Torch: `F.interpolate(x, size=(H_out, W_out), mode='bilinear', align_corners=a)`.
 pub fn interpolate_bilinear_fwd<F: Float>(x: ArrayViewD<F>, cfg: &InterpCfg) -> Result<Array4<F>> {
     let x = cfg.check(x)?;
     let x = x.as_standard_layout();
     let (n, c, h, w) = x.dim();
     let (ho, wo) = cfg.out_hw;
+    let mut out = zeros(INTERP, (n, c, ho, wo))?;
     let (ly, lx) = (cfg.lerps::<F>(h, ho, cfg.scales[0]), cfg.lerps::<F>(w, wo, cfg.scales[1]));
-    let mut out = Array4::<F>::zeros((n, c, ho, wo));
     let os = out.as_slice_mut().expect("fresh array");
     let xs = x.as_slice().expect("standard layout");
     os.par_chunks_mut(ho * wo).zip(xs.par_chunks(h * w)).for_each(|(o, xp)| {
         for (orow, a) in o.chunks_mut(wo).zip(&ly) {
+            // source rows y0 and y1
             let (r0, r1) = (&xp[a.i0 * w..][..w], &xp[a.i1 * w..][..w]);
             for (ov, b) in orow.iter_mut().zip(&lx) {
                 // out = ly0·(lx0·x00 + lx1·x01) + ly1·(lx0·x10 + lx1·x11)
@@ -421,7 +466,7 @@ pub fn interpolate_bilinear_bwd<F: Float>(g: ArrayViewD<F>, input_hw: (usize, us
     let g = g.as_standard_layout();
     let (ho, wo) = cfg.out_hw;
     let (ly, lx) = (cfg.lerps::<F>(h, ho, cfg.scales[0]), cfg.lerps::<F>(w, wo, cfg.scales[1]));
-    let mut dx = Array4::<F>::zeros((n, c, h, w));
+    let mut dx = zeros(INTERP, (n, c, h, w))?;
     let ds = dx.as_slice_mut().expect("fresh array");
     let gs = g.as_slice().expect("standard layout");
     ds.par_chunks_mut(h * w).zip(gs.par_chunks(ho * wo)).for_each(|(d, gp)| {
@@ -465,15 +510,25 @@ impl UnfoldCfg {
     /// Number of block positions (L_h, L_w) over an (h, w) input:
     /// L = (size + 2·pad - dil·(k - 1) - 1) / stride + 1.
     pub fn blocks(&self, op: &'static str, h: usize, w: usize, shapes: &[(&'static str, &[usize])]) -> Result<(usize, usize)> {
-        let axis = |size: usize, a: usize| {
-            let span = self.dilation[a] * (self.kernel[a] - 1) + 1;
-            let padded = size + 2 * self.padding[a];
-            (padded >= span).then(|| (padded - span) / self.stride[a] + 1)
+        let overflow = || Error::shape(op, format!("kernel {:?}, dilation {:?}, padding {:?} overflow the index range", self.kernel, self.dilation, self.padding), shapes);
+        let axis = |size: usize, a: usize| -> Result<usize> {
+            // span = dil·(k - 1) + 1, padded = size + 2·pad (checked: every index below stays < padded)
+            let span = self.dilation[a].checked_mul(self.kernel[a] - 1).and_then(|v| v.checked_add(1)).ok_or_else(overflow)?;
+            let padded = self.padding[a].checked_mul(2).and_then(|v| v.checked_add(size)).ok_or_else(overflow)?;
+            if padded < span {
+                return Err(Error::shape(op, format!("kernel {:?} (dilation {:?}) is larger than the padded input {h}x{w} (padding {:?})", self.kernel, self.dilation, self.padding), shapes));
+            }
+            Ok((padded - span) / self.stride[a] + 1)
         };
-        match (axis(h, 0), axis(w, 1)) {
-            (Some(lh), Some(lw)) => Ok((lh, lw)),
-            _ => Err(Error::shape(op, format!("kernel {:?} (dilation {:?}) is larger than the padded input {h}x{w} (padding {:?})", self.kernel, self.dilation, self.padding), shapes)),
-        }
+        let (lh, lw) = (axis(h, 0)?, axis(w, 1)?);
+        lh.checked_mul(lw).ok_or_else(overflow)?;
+        Ok((lh, lw))
+    }
+
+    /// C·kh·kw, the column rows of C channels, or an error if that overflows.
+    fn rows(&self, op: &'static str, c: usize, shape: &[usize]) -> Result<usize> {
+        c.checked_mul(self.kernel[0]).and_then(|v| v.checked_mul(self.kernel[1]))
+            .ok_or_else(|| Error::shape(op, format!("kernel {:?} is too large", self.kernel), &[("input", shape)]))
     }
 
     /// For block row l and kernel row k along axis a: the input index l·stride - pad + k·dil, if inside.
@@ -501,13 +556,14 @@ pub fn unfold_fwd<F: Float>(x: ArrayViewD<F>, cfg: &UnfoldCfg) -> Result<Array3<
     let (n, c, h, w) = x.dim();
     let (lh, lw) = cfg.blocks(OP, h, w, &[("input", x.shape())])?;
     let [kh, kw] = cfg.kernel;
-    let l = lh * lw;
-    let mut out = Array3::<F>::zeros((n, c * kh * kw, l));
+    let (l, rows) = (lh * lw, cfg.rows(OP, c, x.shape())?);
+    let mut out = zeros(OP, (n, rows, l))?;
     let os = out.as_slice_mut().expect("fresh array");
     let xs = x.as_slice().expect("standard layout");
     // one (n, c) input plane <-> kh·kw contiguous output rows
     os.par_chunks_mut(kh * kw * l).zip(xs.par_chunks(h * w)).for_each(|(o, xp)| {
         for (r, orow) in o.chunks_mut(l).enumerate() {
+            // row r = i·kw + j within the channel's kh·kw rows
             let (i, j) = (r / kw, r % kw);
             for (bh, oseg) in orow.chunks_mut(lw).enumerate() {
                 let Some(y) = cfg.source(0, bh, i, h) else { continue };
@@ -540,19 +596,21 @@ pub fn fold_fwd<F: Float>(cols: ArrayViewD<F>, output_hw: (usize, usize), cfg: &
     let [kh, kw] = cfg.kernel;
     let (lh, lw) = cfg.blocks(OP, h, w, &shapes)?;
     let (n, ck, l) = cols.dim();
-    if ck % (kh * kw) != 0 || l != lh * lw {
+    let taps = cfg.rows(OP, 1, cols.shape())?;
+    if ck % taps != 0 || l != lh * lw {
         return Err(Error::shape(OP, format!(
             "input must be (N, C·{kh}·{kw}, {}) for output_size {h}x{w} and kernel {:?}", lh * lw, cfg.kernel
         ), &shapes));
     }
-    let c = ck / (kh * kw);
+    let c = ck / taps;
     let cols = cols.as_standard_layout();
-    let mut out = Array4::<F>::zeros((n, c, h, w));
+    let mut out = zeros(OP, (n, c, h, w))?;
     let os = out.as_slice_mut().expect("fresh array");
     let cs = cols.as_slice().expect("standard layout");
     // one (n, c) output plane <-> kh·kw contiguous input rows, summed in a fixed order
     os.par_chunks_mut(h * w).zip(cs.par_chunks(kh * kw * l)).for_each(|(op, cp)| {
         for (r, crow) in cp.chunks(l).enumerate() {
+            // row r = i·kw + j within the channel's kh·kw rows
             let (i, j) = (r / kw, r % kw);
             for (bh, cseg) in crow.chunks(lw).enumerate() {
                 let Some(y) = cfg.source(0, bh, i, h) else { continue };

@@ -5,7 +5,7 @@
 //! |---|---|---|
 //! | convex upsampling by rate R | `convex_upsample_fwd` | `convex_upsample_bwd` (flow, mask) |
 
-use crate::tensor::{check_nonempty, fixed};
+use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, ArrayViewMut2, Axis, Ix4};
 use rayon::prelude::*;
@@ -35,9 +35,13 @@ impl ConvexUpsampleCfg {
             return Err(Error::arg(OP, "rate must be positive"));
         }
         check_nonempty(OP, &shapes)?;
-        let rr = self.rate * self.rate;
-        if mask[0] != flow[0] || mask[1] != 9 * rr || mask[2..] != flow[2..] {
-            return Err(Error::shape(OP, format!("mask must be (N, 9*rate^2 = {}, h, w) for flow (N, D, h, w)", 9 * rr), &shapes));
+        // mask channels 9·R², output (R·h, R·w)
+        let checked = || Some((self.rate.checked_mul(self.rate)?.checked_mul(9)?, self.rate.checked_mul(flow[2])?, self.rate.checked_mul(flow[3])?));
+        let Some((channels, _, _)) = checked() else {
+            return Err(Error::arg(OP, format!("rate {} is too large", self.rate)));
+        };
+        if mask[0] != flow[0] || mask[1] != channels || mask[2..] != flow[2..] {
+            return Err(Error::shape(OP, format!("mask must be (N, 9*rate^2 = {channels}, h, w) for flow (N, D, h, w)"), &shapes));
         }
         Ok(Dims { n: flow[0], d: flow[1], h: flow[2], w: flow[3] })
     }
@@ -89,7 +93,7 @@ impl<F: Float> RowCtx<F> {
             }
             for wk in wij.chunks_mut(w) {
                 // softmax_k = e_k / Σ e
-                wk.iter_mut().zip(&sum).for_each(|(e, &s)| *e = *e / s);
+                wk.iter_mut().zip(&sum).for_each(|(e, &s)| *e /= s);
             }
         }
         RowCtx { wts, nb }
@@ -124,6 +128,9 @@ fn sub(rate: usize, w: usize, i: usize, j: usize, x: usize) -> usize {
 /// out[d, R·y + i, R·x + j] = Σ_k softmax_k(mask[k·R² + i·R + j, y, x]) · R · flow[d, y + dy_k, x + dx_k],
 /// k = (dy+1)·3 + (dx+1), flow read as 0 outside the map.
 ///
+/// # Gradient
+/// flow and mask: see [`convex_upsample_bwd`] (softmax Jacobian for the mask, fold of the weighted grads for the flow).
+///
 /// Torch (RAFT `upsample_flow`): `softmax(mask.view(N,1,9,R,R,h,w), dim=2)` times
 /// `F.unfold(R*flow, [3,3], padding=1).view(N,D,9,1,1,h,w)`, summed over dim 2,
 /// `.permute(0,1,4,2,5,3).reshape(N,D,R*h,R*w)`.
@@ -133,7 +140,7 @@ pub fn convex_upsample_fwd<F: Float>(flow: ArrayViewD<F>, mask: ArrayViewD<F>, c
     let (flow, mask) = (flow.as_standard_layout(), mask.as_standard_layout());
     let (fs, ms) = (flow.as_slice().expect("standard layout"), mask.as_slice().expect("standard layout"));
     let (rate, w) = (cfg.rate, dm.w);
-    let mut out = Array4::<F>::zeros(cfg.out_shape(&dm));
+    let mut out = zeros(OP, cfg.out_shape(&dm))?;
     {
         let mut blocks = out.view_mut().into_shape_with_order((dm.n, dm.d, dm.h, rate * rate * w)).expect("contiguous");
         blocks.axis_iter_mut(Axis(0)).into_par_iter().enumerate().for_each(|(b, mut bn)| {
@@ -205,7 +212,7 @@ pub fn convex_upsample_bwd<F: Float>(
     );
     let (rate, rr) = (cfg.rate, cfg.rate * cfg.rate);
     let block = rr * w;
-    let mut dmask = Array4::<F>::zeros((n, 9 * rr, h, w));
+    let mut dmask = zeros(OP, (n, 9 * rr, h, w))?;
     // du[((b·h + y)·9 + k)·D + d][x] = dU_k[d, y, x]
     let mut du = vec![F::zero(); n * h * 9 * nd * w];
     dmask.axis_iter_mut(Axis(0)).into_par_iter().zip(du.par_chunks_mut(h * 9 * nd * w)).enumerate().for_each(|(b, (mut dmn, dun))| {
@@ -246,7 +253,7 @@ pub fn convex_upsample_bwd<F: Float>(
         );
     });
     let rate_f = F::from_usize(rate).unwrap_or_else(F::max_value);
-    let mut dflow = Array4::<F>::zeros((n, nd, h, w));
+    let mut dflow = zeros(OP, (n, nd, h, w))?;
     let dfs = dflow.as_slice_mut().expect("fresh array");
     dfs.par_chunks_mut(h * w).enumerate().for_each(|(p, plane)| {
         let (b, ch) = (p / nd, p % nd);
