@@ -5,6 +5,7 @@ Tolerances live here, in one place, per dtype.
 
 from __future__ import annotations
 
+import importlib
 import os
 from typing import Callable, Sequence
 
@@ -20,13 +21,17 @@ TOL = {
 }
 
 
-def require_torch():
-    """torch, or skip the calling module outside CI; in CI a missing torch is an error."""
+def require(module: str):
+    """Imports an optional test dependency: outside CI a missing one skips the caller; in CI (env
+    ``CI`` set) it is an error, so nothing that CI installs can silently skip."""
     if os.environ.get("CI"):
-        import torch
+        return importlib.import_module(module)
+    return pytest.importorskip(module)
 
-        return torch
-    return pytest.importorskip("torch")
+
+def require_torch():
+    """torch (see :func:`require`)."""
+    return require("torch")
 
 
 def rand(shape: Sequence[int], dtype=np.float32, low: float = -2.0, high: float = 2.0, seed: int = 0) -> np.ndarray:

@@ -11,6 +11,7 @@ import mipnet
 from mipnet import io
 from mipnet.cli import main
 from mipnet.data.synthetic import make_pair
+from helpers import require
 
 
 @pytest.fixture()
@@ -67,8 +68,7 @@ def test_infer_reports_missing_files_and_unpaired_globs(pairs_dir, tmp_path):
 
 
 def test_eval_prints_mipnet_and_sgbm_rows(capsys):
-    if not os.environ.get("CI"):
-        pytest.importorskip("cv2")
+    require("cv2")
     assert main(["eval", "--dataset", "synthetic-underwater", "--preset", "low_light", "--n", "2",
                  "--size", "64", "96", "--iters", "1", "1"]) == 0
     out = capsys.readouterr().out

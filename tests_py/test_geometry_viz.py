@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from helpers import require
 from mipnet.geometry import baseline_in_metres, depth_to_points, disparity_to_depth
 from mipnet.io import read_calib, write_ply
 from mipnet.viz import COLORMAPS, colorize, colormap_lut
@@ -107,7 +108,7 @@ def test_turbo_lut_shape_and_landmarks():
 
 
 def test_turbo_close_to_reference_when_matplotlib_present():
-    matplotlib = pytest.importorskip("matplotlib")
+    matplotlib = require("matplotlib")
     reference = matplotlib.colormaps["turbo"](np.linspace(0, 1, 256))[:, :3] * 255
     assert np.abs(colormap_lut("turbo") - reference).mean() < 10  # polynomial approximation
 

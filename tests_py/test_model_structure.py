@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import mipnet
+from helpers import require
 
 SPEC = Path(__file__).resolve().parents[1].parent / "shared" / "spec" / "mipnet-architecture.md"
 
@@ -77,7 +78,7 @@ def test_save_and_load_round_trip_config_and_weights(tmp_path):
 
 
 def test_safetensors_files_match_the_reference_library(tmp_path):
-    st = pytest.importorskip("safetensors.numpy") if not os.environ.get("CI") else __import__("safetensors.numpy").numpy
+    st = require("safetensors.numpy")
     from mipnet.weights import load_safetensors, save_safetensors
 
     arrays = {"a": np.arange(6, dtype=np.float32).reshape(2, 3), "n": np.array(7, np.int64)}

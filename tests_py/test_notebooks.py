@@ -1,19 +1,15 @@
 """Every notebook runs top to bottom on the public API (nbclient; outputs are not committed)."""
 
-import os
 from pathlib import Path
 
 import pytest
+from helpers import require
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 
 
 def _nb_modules():
-    if os.environ.get("CI"):
-        import nbclient
-        import nbformat
-        return nbclient, nbformat
-    return pytest.importorskip("nbclient"), pytest.importorskip("nbformat")
+    return require("nbclient"), require("nbformat")
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])

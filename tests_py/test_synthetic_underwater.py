@@ -1,10 +1,10 @@
 """Procedural stereo pairs (exact disparity), underwater degradation, and SGBM on degraded pairs."""
 
-import os
 import time
 
 import numpy as np
 import pytest
+from helpers import require
 from mipnet.data import SyntheticStereo, make_pair, synthetic_underwater_pairs
 from mipnet.metrics import evaluate
 from mipnet.underwater import (
@@ -17,12 +17,8 @@ from mipnet.underwater import (
 
 
 def require_cv2():
-    """cv2 is optional for users, but in CI (env CI set) a missing cv2 must fail, not skip."""
-    if os.environ.get("CI"):
-        import cv2
-
-        return cv2
-    return pytest.importorskip("cv2")
+    """cv2 is optional for users; required in CI (see helpers.require)."""
+    return require("cv2")
 
 
 @pytest.fixture(scope="module")
