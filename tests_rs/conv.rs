@@ -282,3 +282,37 @@ fn conv2d_bwd_rejects_grad_output_of_the_wrong_shape() {
         assert!(err.contains(needle), "{needle:?} not in {err:?}");
     }
 }
+
+#[test]
+fn gemm_f32_matches_f64_product_for_layouts_edges_and_beta() {
+    use _core::gemm::gemm;
+    use ndarray::{Array2, ShapeBuilder};
+    let mut rng = Rng::new(30);
+    // sizes straddling the AVX-512 kernel's 8 x 48 tiles and 384 / 192 / 2016 blocks, and tiny ones
+    for &(m, k, n) in &[(128, 1152, 100), (7, 5, 3), (37, 800, 61), (200, 390, 2100), (1, 64, 2000), (130, 1, 50)] {
+        for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
+            let a64 = Array2::from_shape_simple_fn((m, k), || rng.uniform(-1.0, 1.0));
+            let b64 = Array2::from_shape_simple_fn((k, n), || rng.uniform(-1.0, 1.0));
+            let c64 = Array2::from_shape_simple_fn((m, n), || rng.uniform(-1.0, 1.0));
+            // stored transposed (column-major) when ta / tb: the same matrices through other strides
+            let store = |x: &Array2<f64>, t: bool| {
+                let mut s = Array2::<f32>::zeros(x.dim().set_f(t));
+                s.zip_mut_with(x, |d, &v| *d = v as f32);
+                s
+            };
+            let (a, b) = (store(&a64, ta), store(&b64, tb));
+            let mut c = c64.mapv(|v| v as f32);
+            gemm(0.5f32, a.view(), b.view(), 2.0, c.view_mut());
+            let a32 = a64.mapv(|v| v as f32 as f64);
+            let b32 = b64.mapv(|v| v as f32 as f64);
+            // C = 0.5·A·B + 2·C
+            let want = a32.dot(&b32) * 0.5 + c64.mapv(|v| v as f32 as f64) * 2.0;
+            let err = c.iter().zip(want.iter()).map(|(x, y)| (*x as f64 - y).abs()).fold(0.0, f64::max);
+            assert!(err < 1e-4 * (k as f64).sqrt().max(1.0), "{m}x{k}x{n} ta={ta} tb={tb}: err {err}");
+            // beta 0 must ignore NaN in C
+            let mut cn = Array2::<f32>::from_elem((m, n), f32::NAN);
+            gemm(1.0f32, a.view(), b.view(), 0.0, cn.view_mut());
+            assert!(cn.iter().all(|v| v.is_finite()), "{m}x{k}x{n}: NaN leaked through beta 0");
+        }
+    }
+}

@@ -1,0 +1,189 @@
+//! f32 GEMM for AVX-512 CPUs: packed panels and an 8 x 48 register-blocked micro-kernel.
+//!
+//! matrixmultiply's AVX-512 sgemm kernel (16 x 16) issues one load per FMA, which caps it near 80%
+//! of the FMA peak; this kernel keeps 24 accumulators (8 rows of C, each 48 columns as three zmm
+//! vectors) and issues 11 loads per 24 FMAs. Blocking: B in KC x NC blocks packed into NR-column
+//! panels, A in MC x KC blocks packed into MR-row panels (BLIS loop order). Every C element is
+//! summed over k in increasing order, one KC block after the other, whatever the shapes and the
+//! block it falls in, so results do not depend on how callers tile C.
+
+use std::arch::x86_64::*;
+use std::cell::RefCell;
+
+/// Rows of C per micro-kernel call (values of A broadcast per k).
+const MR: usize = 8;
+/// Columns of C per micro-kernel call (three zmm vectors of B per k).
+const NR: usize = 48;
+/// Depth of a packed block.
+const KC: usize = 384;
+/// Rows of A packed at a time.
+const MC: usize = 192;
+/// Columns of B packed at a time.
+const NC: usize = NR * 42;
+
+/// One 64-byte aligned vector: the unit of the packing buffers (aligned loads of B).
+#[repr(C, align(64))]
+#[derive(Clone, Copy)]
+struct Line([f32; 16]);
+
+thread_local! {
+    /// This thread's packing buffers (A panels, B panels), reused across calls.
+    static BUFS: RefCell<(Vec<Line>, Vec<Line>)> = const { RefCell::new((Vec::new(), Vec::new())) };
+}
+
+/// Whether this CPU runs the kernel.
+pub fn available() -> bool {
+    is_x86_feature_detected!("avx512f")
+}
+
+/// Address of element (i, j) of a strided matrix.
+#[inline(always)]
+unsafe fn at(p: *const f32, i: usize, j: usize, rs: isize, cs: isize) -> *const f32 {
+    unsafe { p.offset(i as isize * rs + j as isize * cs) }
+}
+
+/// Packs A[0..mc, 0..kc] into MR-row panels, pa[panel][kk][i], zero rows past mc.
+unsafe fn pack_a(mc: usize, kc: usize, a: *const f32, rsa: isize, csa: isize, pa: *mut f32) {
+    for (p, i0) in (0..mc).step_by(MR).enumerate() {
+        let rows = MR.min(mc - i0);
+        unsafe {
+            let dst = pa.add(p * kc * MR);
+            for i in 0..MR {
+                for kk in 0..kc {
+                    // packed (kk, i) = A(i0 + i, kk)
+                    *dst.add(kk * MR + i) = if i < rows { *at(a, i0 + i, kk, rsa, csa) } else { 0.0 };
+                }
+            }
+        }
+    }
+}
+
+/// Packs B[0..kc, 0..nc] into NR-column panels, pb[panel][kk][j], zero columns past nc.
+unsafe fn pack_b(kc: usize, nc: usize, b: *const f32, rsb: isize, csb: isize, pb: *mut f32) {
+    for (p, j0) in (0..nc).step_by(NR).enumerate() {
+        let cols = NR.min(nc - j0);
+        unsafe {
+            let dst = pb.add(p * kc * NR);
+            if csb == 1 && cols == NR {
+                for kk in 0..kc {
+                    // packed (kk, 0..NR) = B(kk, j0..j0 + NR), contiguous
+                    std::ptr::copy_nonoverlapping(at(b, kk, j0, rsb, 1), dst.add(kk * NR), NR);
+                }
+            } else {
+                for j in 0..NR {
+                    for kk in 0..kc {
+                        // packed (kk, j) = B(kk, j0 + j)
+                        *dst.add(kk * NR + j) = if j < cols { *at(b, kk, j0 + j, rsb, csb) } else { 0.0 };
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// C[0..rows, 0..cols] <- alpha · Apanel · Bpanel + beta · C (C not read when beta is 0).
+#[target_feature(enable = "avx512f")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn kernel(kc: usize, pa: *const f32, pb: *const f32, alpha: f32, beta: f32, c: *mut f32, rsc: isize,
+                 csc: isize, rows: usize, cols: usize) {
+    let mut acc = [[_mm512_setzero_ps(); 3]; MR];
+    let (mut a, mut b) = (pa, pb);
+    for _ in 0..kc {
+        // acc[i][v] += A(i, kk) · B(kk, 16v..16v + 16)
+        let bv = unsafe { [_mm512_load_ps(b), _mm512_load_ps(b.add(16)), _mm512_load_ps(b.add(32))] };
+        for (i, row) in acc.iter_mut().enumerate() {
+            let ai = _mm512_set1_ps(unsafe { *a.add(i) });
+            for (r, &bvv) in row.iter_mut().zip(&bv) {
+                *r = _mm512_fmadd_ps(ai, bvv, *r);
+            }
+        }
+        a = a.wrapping_add(MR);
+        b = b.wrapping_add(NR);
+    }
+    let (av, bv) = (_mm512_set1_ps(alpha), _mm512_set1_ps(beta));
+    if csc == 1 {
+        // lanes of vector v holding columns < cols
+        let masks: [__mmask16; 3] =
+            std::array::from_fn(|v| ((1u32 << cols.saturating_sub(16 * v).min(16)) - 1) as __mmask16);
+        for (i, row) in acc.iter().enumerate().take(rows) {
+            for (v, &r) in row.iter().enumerate() {
+                unsafe {
+                    let p = c.offset(i as isize * rsc).add(16 * v);
+                    let mut out = _mm512_mul_ps(av, r);
+                    if beta != 0.0 {
+                        out = _mm512_fmadd_ps(bv, _mm512_maskz_loadu_ps(masks[v], p), out);
+                    }
+                    _mm512_mask_storeu_ps(p, masks[v], out);
+                }
+            }
+        }
+    } else {
+        let mut tmp = [Line([0.0; 16]); 3];
+        for row in acc.iter().take(rows).enumerate() {
+            let (i, row) = row;
+            for (t, &r) in tmp.iter_mut().zip(row) {
+                unsafe { _mm512_store_ps(t.0.as_mut_ptr(), _mm512_mul_ps(av, r)) };
+            }
+            for j in 0..cols {
+                unsafe {
+                    let p = c.offset(i as isize * rsc + j as isize * csc);
+                    let r = tmp[j / 16].0[j % 16];
+                    *p = if beta != 0.0 { r + beta * *p } else { r };
+                }
+            }
+        }
+    }
+}
+
+/// C <- alpha · A·B + beta · C on raw strided storage (A: m x k, B: k x n, C: m x n, all non-empty).
+///
+/// # Safety
+/// The CPU has AVX-512F ([`available`]); pointers and strides describe valid memory of those sizes,
+/// and C does not alias A or B.
+#[allow(clippy::too_many_arguments)]
+pub unsafe fn sgemm(m: usize, k: usize, n: usize, alpha: f32, a: *const f32, rsa: isize, csa: isize,
+                    b: *const f32, rsb: isize, csb: isize, beta: f32, c: *mut f32, rsc: isize, csc: isize) {
+    let need_a = MC.min(m).div_ceil(MR) * MR * KC.min(k) / 16 + 1;
+    let need_b = NC.min(n).div_ceil(NR) * NR * KC.min(k) / 16 + 1;
+    let run = |pa: *mut f32, pb: *mut f32| {
+        for jc in (0..n).step_by(NC) {
+            let nc = NC.min(n - jc);
+            for pc in (0..k).step_by(KC) {
+                let kc = KC.min(k - pc);
+                // later K blocks add to what the first one wrote
+                let beta = if pc == 0 { beta } else { 1.0 };
+                unsafe {
+                    pack_b(kc, nc, at(b, pc, jc, rsb, csb), rsb, csb, pb);
+                    for ic in (0..m).step_by(MC) {
+                        let mc = MC.min(m - ic);
+                        pack_a(mc, kc, at(a, ic, pc, rsa, csa), rsa, csa, pa);
+                        for (jp, jr) in (0..nc).step_by(NR).enumerate() {
+                            for (ip, ir) in (0..mc).step_by(MR).enumerate() {
+                                // C block (ic + ir, jc + jr) of at most MR x NR
+                                kernel(kc, pa.add(ip * kc * MR), pb.add(jp * kc * NR), alpha, beta,
+                                       c.offset((ic + ir) as isize * rsc + (jc + jr) as isize * csc), rsc, csc,
+                                       MR.min(mc - ir), NR.min(nc - jr));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    };
+    BUFS.with(|bufs| match bufs.try_borrow_mut() {
+        Ok(mut bufs) => {
+            let (pa, pb) = &mut *bufs;
+            if pa.len() < need_a {
+                pa.resize(need_a, Line([0.0; 16]));
+            }
+            if pb.len() < need_b {
+                pb.resize(need_b, Line([0.0; 16]));
+            }
+            run(pa.as_mut_ptr().cast(), pb.as_mut_ptr().cast());
+        }
+        Err(_) => {
+            let (mut pa, mut pb) = (vec![Line([0.0; 16]); need_a], vec![Line([0.0; 16]); need_b]);
+            run(pa.as_mut_ptr().cast(), pb.as_mut_ptr().cast());
+        }
+    });
+}
