@@ -41,7 +41,10 @@ fn conv_ref(x: &ArrayD<f64>, w: &ArrayD<f64>, b: Option<&ArrayD<f64>>, cfg: &Con
 /// (x shape, w shape, stride, padding): every kernel shape MIPNet uses, odd sizes, stride 2,
 /// asymmetric padding, the pointwise fast path, and a case large enough to span several tiles and
 /// dX channel chunks.
-const CASES: &[(&str, [usize; 4], [usize; 4], [usize; 2], [usize; 2])] = &[
+/// (name, input shape, weight shape, stride, padding)
+type Case = (&'static str, [usize; 4], [usize; 4], [usize; 2], [usize; 2]);
+
+const CASES: &[Case] = &[
     ("7x7_stride2_pad3", [2, 3, 13, 11], [4, 3, 7, 7], [2, 2], [3, 3]),
     ("5x5_pad2", [1, 2, 9, 8], [3, 2, 5, 5], [1, 1], [2, 2]),
     ("3x3_pad1", [2, 4, 7, 9], [5, 4, 3, 3], [1, 1], [1, 1]),
@@ -232,6 +235,9 @@ fn conv2d_accepts_non_contiguous_views() {
     assert_eq!((a.x, a.w, a.b), (c.x, c.w, c.b));
 }
 
+/// (what, input shape, weight shape, bias shape, cfg, substrings the message must contain)
+type ErrCase<'a> = (&'a str, &'a [usize], &'a [usize], Option<&'a [usize]>, Conv2dCfg, &'a [&'a str]);
+
 /// The error message of a failing forward.
 fn fwd_err(xs: &[usize], ws: &[usize], bs: Option<&[usize]>, cfg: Conv2dCfg) -> String {
     let x = ArrayD::<f32>::zeros(IxDyn(xs));
@@ -243,7 +249,7 @@ fn fwd_err(xs: &[usize], ws: &[usize], bs: Option<&[usize]>, cfg: Conv2dCfg) -> 
 #[test]
 fn conv2d_rejects_bad_shapes_naming_op_and_shapes() {
     let cfg = Conv2dCfg::new([1, 1], [1, 1]);
-    let cases: &[(&str, &[usize], &[usize], Option<&[usize]>, Conv2dCfg, &[&str])] = &[
+    let cases: &[ErrCase] = &[
         ("channel mismatch", &[2, 3, 8, 8], &[4, 5, 3, 3], None, cfg, &["[2, 3, 8, 8]", "[4, 5, 3, 3]", "weight.shape[1]"]),
         ("3-D input", &[3, 8, 8], &[4, 3, 3, 3], None, cfg, &["input", "[3, 8, 8]", "4-D"]),
         ("5-D weight", &[2, 3, 8, 8], &[4, 3, 3, 3, 1], None, cfg, &["weight", "[4, 3, 3, 3, 1]"]),

@@ -42,42 +42,90 @@ unsafe fn at(p: *const f32, i: usize, j: usize, rs: isize, cs: isize) -> *const 
     unsafe { p.offset(i as isize * rs + j as isize * cs) }
 }
 
+/// dst[t·ds + i] = src[i·ss + t] for i, t in 0..8: an 8 x 8 transpose in AVX registers.
+#[target_feature(enable = "avx")]
+unsafe fn transpose8(src: *const f32, ss: isize, dst: *mut f32, ds: usize) {
+    unsafe {
+        let r: [__m256; 8] = std::array::from_fn(|i| _mm256_loadu_ps(src.offset(i as isize * ss)));
+        let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+        let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+        let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+        let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+        let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+        let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+        let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+        let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+        let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+        let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
+        let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+        let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
+        let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+        let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
+        let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+        let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
+        let out = [
+            _mm256_permute2f128_ps::<0x20>(u0, u4),
+            _mm256_permute2f128_ps::<0x20>(u1, u5),
+            _mm256_permute2f128_ps::<0x20>(u2, u6),
+            _mm256_permute2f128_ps::<0x20>(u3, u7),
+            _mm256_permute2f128_ps::<0x31>(u0, u4),
+            _mm256_permute2f128_ps::<0x31>(u1, u5),
+            _mm256_permute2f128_ps::<0x31>(u2, u6),
+            _mm256_permute2f128_ps::<0x31>(u3, u7),
+        ];
+        for (t, o) in out.iter().enumerate() {
+            _mm256_storeu_ps(dst.add(t * ds), *o);
+        }
+    }
+}
+
+/// Packs a `width`-wide panel from a matrix whose panel index runs along `ps` and depth along `ks`:
+/// dst[kk·width + j] = src[j·ps + kk·ks] for kk < kc, j < used (zero for used ≤ j < width). When
+/// depth is contiguous (ks = 1) the copy goes by 8 x 8 register transposes.
+unsafe fn pack_panel(kc: usize, used: usize, width: usize, src: *const f32, ps: isize, ks: isize, dst: *mut f32) {
+    unsafe {
+        if ps == 1 && used == width {
+            for kk in 0..kc {
+                // dst row kk = src(kk, 0..width), contiguous
+                std::ptr::copy_nonoverlapping(src.offset(kk as isize * ks), dst.add(kk * width), width);
+            }
+            return;
+        }
+        let (mut j0, mut k8) = (0, 0);
+        if ks == 1 {
+            // whole 8 x 8 blocks: dst[(k0 + t)·width + j0 + i] = src[(j0 + i)·ps + k0 + t]
+            k8 = kc / 8 * 8;
+            while j0 + 8 <= used {
+                for k0 in (0..k8).step_by(8) {
+                    transpose8(src.offset(j0 as isize * ps + k0 as isize), ps, dst.add(k0 * width + j0), width);
+                }
+                j0 += 8;
+            }
+        }
+        for j in 0..width {
+            // the rest element by element: columns past the 8-blocks, and the depth tail of the others
+            let from = if j < j0 { k8 } else { 0 };
+            for kk in from..kc {
+                *dst.add(kk * width + j) =
+                    if j < used { *src.offset(j as isize * ps + kk as isize * ks) } else { 0.0 };
+            }
+        }
+    }
+}
+
 /// Packs A[0..mc, 0..kc] into MR-row panels, pa[panel][kk][i], zero rows past mc.
 unsafe fn pack_a(mc: usize, kc: usize, a: *const f32, rsa: isize, csa: isize, pa: *mut f32) {
     for (p, i0) in (0..mc).step_by(MR).enumerate() {
-        let rows = MR.min(mc - i0);
-        unsafe {
-            let dst = pa.add(p * kc * MR);
-            for i in 0..MR {
-                for kk in 0..kc {
-                    // packed (kk, i) = A(i0 + i, kk)
-                    *dst.add(kk * MR + i) = if i < rows { *at(a, i0 + i, kk, rsa, csa) } else { 0.0 };
-                }
-            }
-        }
+        // panel p holds rows i0..i0 + MR: panel index i along rsa, depth kk along csa
+        unsafe { pack_panel(kc, MR.min(mc - i0), MR, at(a, i0, 0, rsa, csa), rsa, csa, pa.add(p * kc * MR)) };
     }
 }
 
 /// Packs B[0..kc, 0..nc] into NR-column panels, pb[panel][kk][j], zero columns past nc.
 unsafe fn pack_b(kc: usize, nc: usize, b: *const f32, rsb: isize, csb: isize, pb: *mut f32) {
     for (p, j0) in (0..nc).step_by(NR).enumerate() {
-        let cols = NR.min(nc - j0);
-        unsafe {
-            let dst = pb.add(p * kc * NR);
-            if csb == 1 && cols == NR {
-                for kk in 0..kc {
-                    // packed (kk, 0..NR) = B(kk, j0..j0 + NR), contiguous
-                    std::ptr::copy_nonoverlapping(at(b, kk, j0, rsb, 1), dst.add(kk * NR), NR);
-                }
-            } else {
-                for j in 0..NR {
-                    for kk in 0..kc {
-                        // packed (kk, j) = B(kk, j0 + j)
-                        *dst.add(kk * NR + j) = if j < cols { *at(b, kk, j0 + j, rsb, csb) } else { 0.0 };
-                    }
-                }
-            }
-        }
+        // panel p holds columns j0..j0 + NR: panel index j along csb, depth kk along rsb
+        unsafe { pack_panel(kc, NR.min(nc - j0), NR, at(b, 0, j0, rsb, csb), csb, rsb, pb.add(p * kc * NR)) };
     }
 }
 

@@ -7,15 +7,17 @@
 //!
 //! W is the matrix [Cout, K] with K = Cin·kh·kw, and cols(x[n]) the matrix [K, Ho·Wo] whose column p
 //! holds the receptive field of output pixel p. It is never built whole (a 3x3 352->128 conv at
-//! 272x480 would need 1.6 GB): each task builds the columns of one range of output pixels (a tile)
-//! in its thread's scratch buffer of at most [`SCRATCH_BYTES`]. A 1x1, stride-1, unpadded conv uses
-//! x[n] itself as cols. The work is split so that every result is deterministic and independent of
-//! the number of threads:
-//! - forward: tasks (image, pixel tile), each writing Y[n][:, tile] = W · cols(tile);
+//! 272x480 would need 1.6 GB): a task builds the columns of one range of output pixels (a tile) in
+//! its thread's scratch buffer of at most [`SCRATCH_BYTES`] (more only when one K x [`MIN_TILE`]
+//! block is larger). A 1x1, stride-1, unpadded conv uses x[n] itself as cols. Every result is
+//! deterministic and independent of the number of threads:
+//! - forward: tasks (image, tile); cols are built [`CHUNK_ROWS`] rows (whole channels) at a time,
+//!   each block added by Y[n][:, tile] += W[:, block] · cols[block, tile] while it is in cache;
 //! - dX: tasks (image, input-channel chunk), each owning dX[n, chunk] and running over the tiles in
 //!   order: dcols = W[:, chunk]ᵀ · dY[n][:, tile], scattered back by col2im;
-//! - dW: the (image, tile) list is cut into at most [`DW_GROUPS`] contiguous groups fixed by the
-//!   shapes; each group accumulates its own partial Σ dY·colsᵀ and the partials are summed in order;
+//! - dW: the (image, tile) list is cut into [`DW_GROUPS`] contiguous groups fixed by the shapes; each
+//!   group sums dY·colsᵀ over its tiles with one GEMM per tile (cols for all of K) into its own
+//!   partial, and the partials are added in group order;
 //! - db: per output channel, Σ over images and pixels in order.
 
 use crate::gemm::gemm;
@@ -25,29 +27,25 @@ use ndarray::{s, Array1, Array2, Array3, Array4, ArrayView, ArrayView2, ArrayVie
 use rayon::prelude::*;
 use std::any::Any;
 use std::cell::RefCell;
-use std::thread::LocalKey;
 use std::ops::Range;
+use std::thread::LocalKey;
 
 const OP: &str = "conv2d";
 /// Upper bound of one thread's im2col / col2im buffer.
-const SCRATCH_BYTES_: usize = 4 << 20;
-#[allow(non_snake_case)] fn SCRATCH_BYTES() -> usize { knob("CONV_SCRATCH", SCRATCH_BYTES_) }
-fn knob(k: &str, d: usize) -> usize { std::env::var(k).ok().and_then(|v| v.parse().ok()).unwrap_or(d) }
-/// Forward tasks wanted per thread (load balance against repacking W once per tile).
-const TASKS_PER_THREAD_: usize = 2;
-#[allow(non_snake_case)] fn TASKS_PER_THREAD() -> usize { knob("CONV_TASKS", TASKS_PER_THREAD_) }
+const SCRATCH_BYTES: usize = 4 << 20;
+/// Forward tasks wanted per thread, at least (more tiles mean more repacking of W).
+const TASKS_PER_THREAD: usize = 1;
 /// Fewest output pixels in a tile (below this the GEMM's packing overhead dominates).
 const MIN_TILE: usize = 64;
-/// Most output pixels in a tile (the GEMM's column block: W is packed once per tile).
-const MAX_TILE_: usize = 1024;
-#[allow(non_snake_case)] fn MAX_TILE() -> usize { knob("CONV_MAXTILE", MAX_TILE_) }
-/// Tiles are a multiple of the GEMM micro-kernel's 16-column panel.
-const TILE_ALIGN: usize = 16;
+/// Most output pixels in a tile.
+const MAX_TILE: usize = 1024;
+/// Tiles are a multiple of the AVX-512 GEMM micro-kernel's 48-column panel.
+const TILE_ALIGN: usize = 48;
 /// Partial dW sums (the parallelism of the weight gradient; fixed, so dW does not depend on the threads).
 const DW_GROUPS: usize = 4;
-/// Rows of dcols (channels · taps) one dX task handles at most, unless more tasks are wanted.
-const CHUNK_ROWS_: usize = 256;
-#[allow(non_snake_case)] fn CHUNK_ROWS() -> usize { knob("CONV_ROWS", CHUNK_ROWS_) }
+/// Rows (channels · taps, whole channels) of a forward cols block and of a dX task's dcols, about:
+/// small enough for the block to stay in L2 while the GEMM packs it.
+const CHUNK_ROWS: usize = 256;
 
 /// Geometry of a convolution: stride and zero padding per axis (height, width).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -180,9 +178,9 @@ fn layout(e: ndarray::ShapeError) -> Error {
 /// Pixels per tile: at most what fits `rows` x tile in the scratch budget, at least `min_tiles`
 /// tiles per image, never below [`MIN_TILE`] (unless the image is smaller), a multiple of [`TILE_ALIGN`].
 fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize) -> usize {
-    let budget = SCRATCH_BYTES() / std::mem::size_of::<F>() / rows.max(1);
+    let budget = SCRATCH_BYTES / std::mem::size_of::<F>() / rows.max(1);
     let split = pix.div_ceil(min_tiles.max(1));
-    let most = budget.min(split).min(MAX_TILE()).max(MIN_TILE);
+    let most = budget.min(split).clamp(MIN_TILE, MAX_TILE);
     // equal tiles: as few as `most` allows
     pix.div_ceil(pix.div_ceil(most)).next_multiple_of(TILE_ALIGN).min(pix).max(1)
 }
@@ -329,7 +327,7 @@ fn col2im<F: Float>(g: &Geom, dcols: &[F], nchans: usize, tile: Range<usize>, dx
 
 /// Input channels per row block of cols: whole channels, about [`CHUNK_ROWS`] rows, evenly split.
 fn block_chans(g: &Geom) -> usize {
-    let blocks = g.cin.div_ceil((CHUNK_ROWS() / (g.kh * g.kw)).max(1));
+    let blocks = g.cin.div_ceil((CHUNK_ROWS / (g.kh * g.kw)).max(1));
     g.cin.div_ceil(blocks)
 }
 
@@ -411,7 +409,7 @@ pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayV
     let (g, xs, wm) = (ops.g, ops.x()?, ops.wmat()?);
     let b = b.as_ref().map(|b| b.to_vec());
     let cc = block_chans(&g);
-    let tile = tile_len::<F>(g.pix(), scratch_rows(&g, cc), (TASKS_PER_THREAD() * rayon::current_num_threads()).div_ceil(g.n));
+    let tile = tile_len::<F>(g.pix(), scratch_rows(&g, cc), (TASKS_PER_THREAD * rayon::current_num_threads()).div_ceil(g.n));
     let mut y = Array3::<F>::zeros((g.n, g.cout, g.pix()));
     y.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut yn)| {
         let xn = &xs[n * g.img()..(n + 1) * g.img()];
@@ -466,7 +464,7 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
     let taps = g.kh * g.kw;
     let (plane, out_len) = (g.h * g.w, g.cout * g.pix());
     // Fewest chunks the row cap allows; more when the threads need more tasks.
-    let min_chunks = g.k().div_ceil(CHUNK_ROWS()).min(g.cin);
+    let min_chunks = g.k().div_ceil(CHUNK_ROWS).min(g.cin);
     let chunks = min_chunks.max((4 * rayon::current_num_threads()).div_ceil(g.n)).min(g.cin);
     let cc = g.cin.div_ceil(chunks);
     // The tile depends on the shapes only (the widest chunk), so the sums do not depend on the threads.
