@@ -2,12 +2,13 @@
 
 Usage::
 
-    python -m mipnet.bench ops [--threads 2] [--repeat 9] [--warmup 2] [--filter conv] [--peak 230]
+    python -m mipnet.bench ops [--threads 2] [--repeat 15] [--warmup 1] [--filter conv] [--peak 230]
 
 ``ops`` times each kernel row (forward, or forward + backward) with mipnet and with torch and prints
-a table: op, shape, mipnet ms and torch ms (medians after warm-up), their ratio, and for rows with
-a FLOP count the achieved GFLOP/s and the share of ``--peak`` GFLOP/s. torch is needed for the
-comparison; without it the command says so and exits with status 1.
+a table: op, shape, mipnet ms and torch ms (medians of runs in alternating blocks, each after a
+warm-up), their ratio, and for rows with a FLOP count the achieved GFLOP/s and the share of
+``--peak`` GFLOP/s. torch is needed for the comparison; without it the command says so and exits
+with status 1.
 
 Adding a row is one line in :func:`ops_cases`: a :class:`BenchCase` with a name, a shape string, a
 function making the numpy inputs, and the mipnet and torch calls taking one tensor per input.
@@ -27,6 +28,12 @@ import numpy as np
 import mipnet
 import mipnet.ops as M
 from mipnet import _core
+
+
+#: Pause after each block of runs of one library (longer than OpenMP's spin-wait).
+_PAUSE_S = 0.3
+#: Least warm-up time at the start of each block.
+_WARM_S = 0.2
 
 
 @dataclass
@@ -94,18 +101,25 @@ def ops_cases(torch: Any) -> list[BenchCase]:
     ]
 
 
-def _median_ms(runs: Sequence[Callable[[], Any]], warmup: int, repeat: int) -> list[float]:
-    """Median wall time in ms of each closure. The closures run interleaved (a, b, a, b, ...), so a
-    burst of load from elsewhere on the machine hits all of them alike."""
-    for _ in range(warmup):
-        for run in runs:
-            run()
+def _median_ms(runs: Sequence[Callable[[], Any]], warmup: int, repeat: int, rounds: int = 3) -> list[float]:
+    """Median wall time in ms of each closure. The closures take turns in `rounds` blocks (a burst of
+    load from elsewhere on the machine hits all of them alike); each block starts with `warmup`
+    untimed runs (and at least _WARM_S of them) and ends with a pause, so that a library's idle worker threads (torch's OpenMP
+    threads spin-wait after a parallel region) have gone to sleep before the next one is timed."""
     times: list[list[float]] = [[] for _ in runs]
-    for _ in range(repeat):
+    per_round = max(1, -(-repeat // rounds))
+    for _ in range(rounds):
         for run, ts in zip(runs, times):
-            t0 = time.perf_counter()
-            run()
-            ts.append(time.perf_counter() - t0)
+            # warm up for `warmup` runs and at least _WARM_S (clocks and caches after the pause)
+            t_end, done = time.perf_counter() + _WARM_S, 0
+            while done < warmup or time.perf_counter() < t_end:
+                run()
+                done += 1
+            for _ in range(per_round):
+                t0 = time.perf_counter()
+                run()
+                ts.append(time.perf_counter() - t0)
+            time.sleep(_PAUSE_S)
     return [1e3 * statistics.median(ts) for ts in times]
 
 
@@ -146,7 +160,7 @@ def run_ops(args: argparse.Namespace, torch: Any) -> int:
         print(f"  done: {case.name} {case.shape_str}", file=sys.stderr, flush=True)
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
     line = lambda r: "  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths)))  # noqa: E731
-    print(f"threads={args.threads}  (median of {args.repeat} interleaved runs after {args.warmup} warm-up; ratio = mipnet / torch)")
+    print(f"threads={args.threads}  (median of {args.repeat} runs in 3 alternating blocks, each after {args.warmup} warm-up; ratio = mipnet / torch)")
     print(line(header))
     print("  ".join("-" * w for w in widths))
     for r in rows:
@@ -159,8 +173,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     ops = sub.add_parser("ops", help="per-kernel timings against torch")
     ops.add_argument("--threads", type=int, default=2, help="threads for mipnet and torch (default 2)")
-    ops.add_argument("--repeat", type=int, default=9, help="timed runs per row (default 9)")
-    ops.add_argument("--warmup", type=int, default=2, help="untimed runs first (default 2)")
+    ops.add_argument("--repeat", type=int, default=15, help="timed runs per row and library (default 15)")
+    ops.add_argument("--warmup", type=int, default=1, help="untimed runs before each block (default 1)")
     ops.add_argument("--filter", default="", help="only rows whose op or shape contains this text")
     ops.add_argument("--peak", type=float, default=230.0, help="GFLOP/s taken as 100%% (default 230)")
     args = parser.parse_args(argv)

@@ -290,7 +290,11 @@ fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
                         if sw == 1 {
                             mid.copy_from_slice(&src[..r.valid]);
                         } else {
-                            mid.iter_mut().zip(src.iter().step_by(sw)).for_each(|(m, &v)| *m = v);
+                            // first element of each sw-wide chunk (a form the compiler vectorises),
+                            // then the last few taps whose chunk would run past the plane
+                            let whole = (src.len() / sw).min(r.valid);
+                            mid[..whole].iter_mut().zip(src.chunks_exact(sw)).for_each(|(m, c)| *m = c[0]);
+                            mid[whole..].iter_mut().zip(src[whole * sw..].iter().step_by(sw)).for_each(|(m, &v)| *m = v);
                         }
                     }
                 });
