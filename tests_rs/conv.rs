@@ -294,8 +294,8 @@ fn gemm_f32_matches_f64_product_for_layouts_edges_and_beta() {
     use _core::gemm::gemm;
     use ndarray::{Array2, ShapeBuilder};
     let mut rng = Rng::new(30);
-    // sizes straddling the AVX-512 kernel's 8 x 48 tiles and 384 / 192 / 2016 blocks, and tiny ones
-    for &(m, k, n) in &[(128, 1152, 100), (7, 5, 3), (37, 800, 61), (200, 390, 2100), (1, 64, 2000), (130, 1, 50)] {
+    // sizes straddling the AVX-512 kernel's 8 x 48 tiles and 384 / 192 / 480 blocks, and tiny ones
+    for &(m, k, n) in &[(128, 1152, 100), (7, 5, 3), (37, 800, 61), (200, 390, 1100), (1, 64, 2000), (130, 1, 50)] {
         for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
             let a64 = Array2::from_shape_simple_fn((m, k), || rng.uniform(-1.0, 1.0));
             let b64 = Array2::from_shape_simple_fn((k, n), || rng.uniform(-1.0, 1.0));

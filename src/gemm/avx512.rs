@@ -18,8 +18,8 @@ const NR: usize = 48;
 const KC: usize = 384;
 /// Rows of A packed at a time.
 const MC: usize = 192;
-/// Columns of B packed at a time.
-const NC: usize = NR * 42;
+/// Columns of B packed at a time (a KC x NC block, 720 KiB, stays in L2).
+const NC: usize = NR * 10;
 
 /// One 64-byte aligned vector: the unit of the packing buffers (aligned loads of B).
 #[repr(C, align(64))]
