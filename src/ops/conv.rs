@@ -7,15 +7,17 @@
 //!
 //! W is the matrix [Cout, K] with K = Cin·kh·kw, and cols(x[n]) the matrix [K, Ho·Wo] whose column p
 //! holds the receptive field of output pixel p. It is never built whole (a 3x3 352->128 conv at
-//! 272x480 would need 1.6 GB): each task builds the columns of one range of output pixels (a tile)
-//! in its thread's scratch buffer of at most [`SCRATCH_BYTES`]. A 1x1, stride-1, unpadded conv uses
-//! x[n] itself as cols. The work is split so that every result is deterministic and independent of
-//! the number of threads:
-//! - forward: tasks (image, pixel tile), each writing Y[n][:, tile] = W · cols(tile);
+//! 272x480 would need 1.6 GB): a task builds the columns of one range of output pixels (a tile) in
+//! its thread's scratch buffer of at most [`SCRATCH_BYTES`] (more only when one K x [`MIN_TILE`]
+//! block is larger). A 1x1, stride-1, unpadded conv uses x[n] itself as cols. Every result is
+//! deterministic and independent of the number of threads:
+//! - forward: tasks (image, tile); cols are built [`CHUNK_ROWS`] rows (whole channels) at a time,
+//!   each block added by Y[n][:, tile] += W[:, block] · cols[block, tile] while it is in cache;
 //! - dX: tasks (image, input-channel chunk), each owning dX[n, chunk] and running over the tiles in
 //!   order: dcols = W[:, chunk]ᵀ · dY[n][:, tile], scattered back by col2im;
-//! - dW: the (image, tile) list is cut into at most [`DW_GROUPS`] contiguous groups fixed by the
-//!   shapes; each group accumulates its own partial Σ dY·colsᵀ and the partials are summed in order;
+//! - dW: the (image, tile) list is cut into [`DW_GROUPS`] contiguous groups fixed by the shapes; each
+//!   group sums dY·colsᵀ over its tiles with one GEMM per tile (cols for all of K) into its own
+//!   partial, and the partials are added in group order;
 //! - db: per output channel, Σ over images and pixels in order.
 
 use crate::gemm::gemm;
@@ -26,17 +28,23 @@ use rayon::prelude::*;
 use std::any::Any;
 use std::cell::RefCell;
 use std::ops::Range;
+use std::thread::LocalKey;
 
 const OP: &str = "conv2d";
 /// Upper bound of one thread's im2col / col2im buffer.
 const SCRATCH_BYTES: usize = 4 << 20;
+/// Forward tasks wanted per thread, at least (more tiles mean more repacking of W).
+const TASKS_PER_THREAD: usize = 1;
 /// Fewest output pixels in a tile (below this the GEMM's packing overhead dominates).
 const MIN_TILE: usize = 64;
-/// Tiles are a multiple of the GEMM micro-kernel's 16-column panel.
-const TILE_ALIGN: usize = 16;
-/// Most partial dW sums (the parallelism of the weight gradient).
-const DW_GROUPS: usize = 8;
-/// Rows of dcols (channels · taps) one dX task handles at most, unless more tasks are wanted.
+/// Most output pixels in a tile.
+const MAX_TILE: usize = 1024;
+/// Tiles are a multiple of the AVX-512 GEMM micro-kernel's 48-column panel.
+const TILE_ALIGN: usize = 48;
+/// Partial dW sums (the parallelism of the weight gradient; fixed, so dW does not depend on the threads).
+const DW_GROUPS: usize = 4;
+/// Rows (channels · taps, whole channels) of a forward cols block and of a dX task's dcols, about:
+/// small enough for the block to stay in L2 while the GEMM packs it.
 const CHUNK_ROWS: usize = 256;
 
 /// Geometry of a convolution: stride and zero padding per axis (height, width).
@@ -172,7 +180,9 @@ fn layout(e: ndarray::ShapeError) -> Error {
 fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize) -> usize {
     let budget = SCRATCH_BYTES / std::mem::size_of::<F>() / rows.max(1);
     let split = pix.div_ceil(min_tiles.max(1));
-    budget.min(split).max(MIN_TILE).next_multiple_of(TILE_ALIGN).min(pix).max(1)
+    let most = budget.min(split).clamp(MIN_TILE, MAX_TILE);
+    // equal tiles: as few as `most` allows
+    pix.div_ceil(pix.div_ceil(most)).next_multiple_of(TILE_ALIGN).min(pix).max(1)
 }
 
 /// The tiles of one image: consecutive ranges of `len` output pixels.
@@ -180,15 +190,21 @@ fn tiles(pix: usize, len: usize) -> impl Iterator<Item = Range<usize>> {
     (0..pix).step_by(len.max(1)).map(move |p| p..(p + len).min(pix))
 }
 
+/// A per-thread reusable buffer: a `Vec<F>` behind `dyn Any`, so f32 and f64 share the slot.
+type Slot = RefCell<Option<Box<dyn Any>>>;
+
 thread_local! {
-    /// This thread's reusable scratch buffer: a `Vec<F>` behind `dyn Any`, so f32 and f64 share the slot.
-    static SCRATCH: RefCell<Option<Box<dyn Any>>> = const { RefCell::new(None) };
+    /// cols / dcols blocks of the task running on this thread.
+    static SCRATCH: Slot = const { RefCell::new(None) };
+    /// The partial dW sums of a weight gradient started on this thread.
+    static PARTIALS: Slot = const { RefCell::new(None) };
 }
 
-/// Runs `f` on this thread's scratch buffer of `len` elements (contents unspecified). `f` must not
-/// call into rayon (a stolen task would find the buffer borrowed; it would then allocate its own).
-fn with_scratch<F: Float, R>(len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
-    SCRATCH.with(|slot| {
+/// Runs `f` on this thread's `slot` buffer of `len` elements (contents unspecified: stale values of
+/// an earlier call). Callers must not re-enter the same slot on this thread; should it happen, the
+/// inner call gets a fresh buffer.
+fn with_buf<F: Float, R>(slot: &'static LocalKey<Slot>, len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
+    slot.with(|slot| {
         let Ok(mut slot) = slot.try_borrow_mut() else {
             return f(&mut vec![F::zero(); len]);
         };
@@ -206,6 +222,12 @@ fn with_scratch<F: Float, R>(len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
         *slot = Some(owned);
         out
     })
+}
+
+/// [`with_buf`] on [`SCRATCH`]. `f` must not call into rayon (a task stolen meanwhile would find the
+/// buffer taken and allocate its own).
+fn with_scratch<F: Float, R>(len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
+    with_buf(&SCRATCH, len, f)
 }
 
 /// A run of consecutive output pixels of one output row, for one kernel tap (ki, kj): positions
@@ -268,7 +290,11 @@ fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
                         if sw == 1 {
                             mid.copy_from_slice(&src[..r.valid]);
                         } else {
-                            mid.iter_mut().zip(src.iter().step_by(sw)).for_each(|(m, &v)| *m = v);
+                            // first element of each sw-wide chunk (a form the compiler vectorises),
+                            // then the last few taps whose chunk would run past the plane
+                            let whole = (src.len() / sw).min(r.valid);
+                            mid[..whole].iter_mut().zip(src.chunks_exact(sw)).for_each(|(m, c)| *m = c[0]);
+                            mid[whole..].iter_mut().zip(src[whole * sw..].iter().step_by(sw)).for_each(|(m, &v)| *m = v);
                         }
                     }
                 });
@@ -303,19 +329,39 @@ fn col2im<F: Float>(g: &Geom, dcols: &[F], nchans: usize, tile: Range<usize>, dx
     }
 }
 
-/// Calls `f` with cols(x[n]) restricted to the rows of `chans` and the columns of `tile`: a view of
-/// x itself for a pointwise conv, else im2col in this thread's scratch.
-fn with_cols<F: Float, R>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
-                          f: impl FnOnce(ArrayView2<F>) -> R) -> Result<R> {
+/// Input channels per row block of cols: whole channels, about [`CHUNK_ROWS`] rows, evenly split.
+fn block_chans(g: &Geom) -> usize {
+    let blocks = g.cin.div_ceil((CHUNK_ROWS / (g.kh * g.kw)).max(1));
+    g.cin.div_ceil(blocks)
+}
+
+/// Calls `f(rows, cols)` on consecutive row blocks of cols(x[n])[:, tile] covering the input
+/// channels `chans`, `cc` whole channels per block (rows c·taps..(c + 1)·taps for channel c): x itself
+/// (one block) for a pointwise conv, else im2col of one block at a time into this thread's scratch,
+/// so the GEMM packs it while it is still in cache.
+fn for_each_cols_block<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, cc: usize, tile: Range<usize>,
+                                 mut f: impl FnMut(Range<usize>, ArrayView2<F>)) -> Result<()> {
     if g.pointwise() {
-        let x2 = ArrayView2::from_shape((g.cin, g.pix()), xn).map_err(layout)?;
-        return Ok(f(x2.slice(s![chans, tile])));
+        f(chans.clone(), mat(xn, g.cin, g.pix())?.slice_move(s![chans, tile]));
+        return Ok(());
     }
-    let rows = chans.len() * g.kh * g.kw;
-    with_scratch(rows * tile.len(), |buf: &mut [F]| {
-        im2col(g, xn, chans, tile.clone(), buf);
-        Ok(f(ArrayView2::from_shape((rows, tile.len()), &*buf).map_err(layout)?))
+    let (taps, len, cc) = (g.kh * g.kw, tile.len(), cc.max(1));
+    with_scratch(cc * taps * len, |buf: &mut [F]| {
+        for c0 in chans.clone().step_by(cc) {
+            let block = c0..(c0 + cc).min(chans.end);
+            // rows of cols for channels c: c·taps .. (c + 1)·taps
+            let rows = block.start * taps..block.end * taps;
+            let cols = &mut buf[..rows.len() * len];
+            im2col(g, xn, block, tile.clone(), cols);
+            f(rows.clone(), mat(cols, rows.len(), len)?);
+        }
+        Ok(())
     })
+}
+
+/// Rows of scratch per tile pixel that [`for_each_cols_block`] needs for blocks of `cc` channels.
+fn scratch_rows(g: &Geom, cc: usize) -> usize {
+    if g.pointwise() { 0 } else { cc * g.kh * g.kw }
 }
 
 /// A contiguous standard-layout slice seen as a [rows, cols] matrix.
@@ -366,7 +412,8 @@ pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayV
     let ops = Operands::new(x, w, b.as_ref().map(|b| b.shape()), cfg)?;
     let (g, xs, wm) = (ops.g, ops.x()?, ops.wmat()?);
     let b = b.as_ref().map(|b| b.to_vec());
-    let tile = tile_len::<F>(g.pix(), g.k(), (4 * rayon::current_num_threads()).div_ceil(g.n));
+    let cc = block_chans(&g);
+    let tile = tile_len::<F>(g.pix(), scratch_rows(&g, cc), (TASKS_PER_THREAD * rayon::current_num_threads()).div_ceil(g.n));
     let mut y = Array3::<F>::zeros((g.n, g.cout, g.pix()));
     y.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut yn)| {
         let xn = &xs[n * g.img()..(n + 1) * g.img()];
@@ -379,8 +426,11 @@ pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayV
                 }
                 None => F::zero(),
             };
-            // Y[n][:, tile] = W · cols(tile) (+ b, already in Y)
-            with_cols(&g, xn, 0..g.cin, px, |cols| gemm(F::one(), wm, cols, beta, yt.view_mut()))
+            for_each_cols_block(&g, xn, 0..g.cin, cc, px, |rows, cols| {
+                // Y[n][:, tile] (+)= W[:, rows] · cols[rows, tile]; the first block adds to b (or to nothing)
+                let beta = if rows.start == 0 { beta } else { F::one() };
+                gemm(F::one(), wm.slice(s![.., rows]), cols, beta, yt.view_mut());
+            })
         })
     })?;
     y.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout)
@@ -453,32 +503,40 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
     dx.into_shape_with_order((g.n, g.cin, g.h, g.w)).map_err(layout)
 }
 
-/// dW, as at most [`DW_GROUPS`] partial sums over contiguous runs of (image, tile), added in order.
+/// dW, as [`DW_GROUPS`] partial sums over contiguous runs of (image, tile), fixed by the shapes and
+/// added in group order. Each tile builds cols for all of K, so one GEMM packs dY once per tile.
+/// Group 0 sums straight into dW, the others into this thread's reused [`PARTIALS`] buffer; the
+/// first tile of a group overwrites (beta 0), so no buffer needs clearing.
 fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
-    let out_len = g.cout * g.pix();
-    let tile = tile_len::<F>(g.pix(), g.k(), DW_GROUPS.div_ceil(g.n));
+    let (out_len, wlen) = (g.cout * g.pix(), g.cout * g.k());
+    let tile = tile_len::<F>(g.pix(), scratch_rows(g, g.cin), DW_GROUPS.div_ceil(g.n));
     let work: Vec<(usize, Range<usize>)> = (0..g.n).flat_map(|n| tiles(g.pix(), tile).map(move |t| (n, t))).collect();
     let groups = DW_GROUPS.min(work.len()).max(1);
-    let partials = (0..groups)
-        .into_par_iter()
-        .map(|gi| {
-            let mut part = Array2::<F>::zeros((g.cout, g.k()));
-            for (n, px) in &work[gi * work.len() / groups..(gi + 1) * work.len() / groups] {
+    let mut dw = Array2::<F>::zeros((g.cout, g.k()));
+    with_buf(&PARTIALS, (groups - 1) * wlen, |rest: &mut [F]| {
+        let mut parts = vec![dw.view_mut()];
+        for chunk in rest.chunks_exact_mut(wlen) {
+            parts.push(ArrayViewMut2::from_shape((g.cout, g.k()), chunk).map_err(layout)?);
+        }
+        parts.into_par_iter().enumerate().try_for_each(|(gi, mut part)| {
+            for (t, (n, px)) in work[gi * work.len() / groups..(gi + 1) * work.len() / groups].iter().enumerate() {
                 let dyt = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?.slice_move(s![.., px.clone()]);
                 let xn = &xs[n * g.img()..(n + 1) * g.img()];
-                // dW += dY[n][:, tile] · cols(tile)ᵀ
-                with_cols(g, xn, 0..g.cin, px.clone(), |cols| gemm(F::one(), dyt, cols.t(), F::one(), part.view_mut()))?;
+                let beta = if t == 0 { F::zero() } else { F::one() };
+                for_each_cols_block(g, xn, 0..g.cin, g.cin, px.clone(), |_, cols| {
+                    // dW_group (+)= dY[n][:, tile] · cols[:, tile]ᵀ
+                    gemm(F::one(), dyt, cols.t(), beta, part.view_mut())
+                })?;
             }
-            Ok(part)
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let mut parts = partials.into_iter();
-    let mut dw = parts.next().unwrap_or_else(|| Array2::zeros((g.cout, g.k())));
-    let rest: Vec<Array2<F>> = parts.collect();
-    // dW = Σ_groups partial, in group order, one output row per task
-    dw.axis_iter_mut(Axis(0)).into_par_iter().enumerate().for_each(|(o, mut row)| {
-        rest.iter().for_each(|p| row += &p.row(o));
-    });
+            Ok::<_, Error>(())
+        })?;
+        // dW = Σ_groups partial, in group order, one output row per task
+        let rest = mat(rest, (groups - 1) * g.cout, g.k())?;
+        dw.axis_iter_mut(Axis(0)).into_par_iter().enumerate().for_each(|(o, mut row)| {
+            (0..groups - 1).for_each(|p| row += &rest.row(p * g.cout + o));
+        });
+        Ok(())
+    })?;
     dw.into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout)
 }
 

@@ -1,0 +1,192 @@
+"""Benchmarks of mipnet against torch on the same inputs and thread count.
+
+Usage::
+
+    python -m mipnet.bench ops [--threads 2] [--repeat 15] [--warmup 1] [--filter conv] [--peak 230]
+
+``ops`` times each kernel row (forward, or forward + backward) with mipnet and with torch and prints
+a table: op, shape, mipnet ms and torch ms (medians of runs in alternating blocks, each after a
+warm-up), their ratio, and for rows with a FLOP count the achieved GFLOP/s and the share of
+``--peak`` GFLOP/s. torch is needed for the comparison; without it the command says so and exits
+with status 1.
+
+Adding a row is one line in :func:`ops_cases`: a :class:`BenchCase` with a name, a shape string, a
+function making the numpy inputs, and the mipnet and torch calls taking one tensor per input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+import mipnet
+import mipnet.ops as M
+from mipnet import _core
+
+
+#: Pause after each block of runs of one library (longer than OpenMP's spin-wait).
+_PAUSE_S = 0.3
+#: Least warm-up time at the start of each block.
+_WARM_S = 0.2
+
+
+@dataclass
+class BenchCase:
+    """One benchmark row.
+
+    Attributes:
+        name: the op as printed ("conv2d 3x3").
+        shape_str: the sizes as printed.
+        make_inputs: numpy inputs from a seeded generator (float32 unless the row says otherwise).
+        mipnet_fn: the mipnet call, one ``mipnet.Tensor`` per input; returns a Tensor (or an array
+            for forward-only rows).
+        torch_fn: the same computation in torch, one ``torch.Tensor`` per input.
+        backward: time forward + backward (to every input in ``grad_inputs``) instead of forward.
+        flops: floating-point operations of one timed call (None: no GFLOP/s column).
+        grad_inputs: which inputs get gradients when ``backward`` (None: all).
+    """
+
+    name: str
+    shape_str: str
+    make_inputs: Callable[[np.random.Generator], list[np.ndarray]]
+    mipnet_fn: Callable[..., Any]
+    torch_fn: Callable[..., Any]
+    backward: bool = False
+    flops: float | None = None
+    grad_inputs: Sequence[int] | None = None
+
+
+def _randn(*shape: int) -> Callable[[np.random.Generator], np.ndarray]:
+    return lambda rng: rng.standard_normal(shape, dtype=np.float32)
+
+
+def conv_case(n: int, cin: int, cout: int, h: int, w: int, k: int, stride: int = 1, backward: bool = False,
+              torch: Any = None) -> BenchCase:
+    """A conv2d row: k x k kernel, padding k // 2, with bias."""
+    pad = k // 2
+    ho, wo = (h + 2 * pad - k) // stride + 1, (w + 2 * pad - k) // stride + 1
+    fwd_flops = 2.0 * n * cout * cin * k * k * ho * wo
+    F = torch.nn.functional
+    return BenchCase(
+        f"conv2d {k}x{k}" + (f" s{stride}" if stride != 1 else "") + (" fwd+bwd" if backward else " fwd"),
+        f"N={n} {cin}->{cout} {h}x{w}",
+        lambda rng: [_randn(n, cin, h, w)(rng), _randn(cout, cin, k, k)(rng) * np.float32(0.05), _randn(cout)(rng)],
+        lambda x, wt, b: M.conv2d(x, wt, b, stride=stride, padding=pad),
+        lambda x, wt, b: F.conv2d(x, wt, b, stride=stride, padding=pad),
+        backward=backward,
+        flops=fwd_flops * (3 if backward else 1),  # backward: dX and dW cost one forward each
+    )
+
+
+def ops_cases(torch: Any) -> list[BenchCase]:
+    """The rows of ``ops``: one line per case."""
+    m, k, n = 1024, 1152, 4096
+    return [
+        BenchCase("sgemm (gemm.rs)", f"{m}x{k} @ {k}x{n}", lambda rng: [_randn(m, k)(rng), _randn(k, n)(rng)],
+                  lambda a, b: _core.gemm_fwd(a.numpy(), b.numpy()), torch.matmul, flops=2.0 * m * k * n),
+        conv_case(2, 128, 128, 96, 128, 3, torch=torch),
+        conv_case(2, 128, 128, 96, 128, 3, backward=True, torch=torch),
+        conv_case(4, 128, 128, 96, 128, 3, torch=torch),
+        conv_case(4, 128, 128, 96, 128, 3, backward=True, torch=torch),
+        conv_case(2, 352, 128, 24, 32, 3, torch=torch),
+        conv_case(2, 352, 128, 24, 32, 3, backward=True, torch=torch),
+        conv_case(2, 3, 64, 384, 512, 7, stride=2, torch=torch),
+        conv_case(2, 3, 64, 384, 512, 7, stride=2, backward=True, torch=torch),
+    ]
+
+
+def _median_ms(runs: Sequence[Callable[[], Any]], warmup: int, repeat: int, rounds: int = 3) -> list[float]:
+    """Median wall time in ms of each closure. The closures take turns in `rounds` blocks (a burst of
+    load from elsewhere on the machine hits all of them alike); each block starts with `warmup`
+    untimed runs (and at least _WARM_S of them) and ends with a pause, so that a library's idle worker threads (torch's OpenMP
+    threads spin-wait after a parallel region) have gone to sleep before the next one is timed."""
+    times: list[list[float]] = [[] for _ in runs]
+    per_round = max(1, -(-repeat // rounds))
+    for _ in range(rounds):
+        for run, ts in zip(runs, times):
+            # warm up for `warmup` runs and at least _WARM_S (clocks and caches after the pause)
+            t_end, done = time.perf_counter() + _WARM_S, 0
+            while done < warmup or time.perf_counter() < t_end:
+                run()
+                done += 1
+            for _ in range(per_round):
+                t0 = time.perf_counter()
+                run()
+                ts.append(time.perf_counter() - t0)
+            time.sleep(_PAUSE_S)
+    return [1e3 * statistics.median(ts) for ts in times]
+
+
+def _runner(case: BenchCase, inputs: list[np.ndarray], lib: str, torch: Any) -> Callable[[], Any]:
+    """A closure running the case once with one library (forward, or forward + backward)."""
+    grad_idx = range(len(inputs)) if case.grad_inputs is None else case.grad_inputs
+    if lib == "torch":
+        tensors = [torch.from_numpy(a).requires_grad_(case.backward and i in grad_idx) for i, a in enumerate(inputs)]
+        fn = case.torch_fn
+    else:
+        tensors = [mipnet.tensor(a, requires_grad=case.backward and i in grad_idx) for i, a in enumerate(inputs)]
+        fn = case.mipnet_fn
+    if not case.backward:
+        return lambda: fn(*tensors)
+    out_shape = tuple(fn(*tensors).shape)
+    g = np.random.default_rng(1).uniform(-1, 1, size=out_shape).astype(inputs[0].dtype)
+    g_lib = torch.from_numpy(g) if lib == "torch" else g
+
+    def run() -> None:
+        for t in tensors:
+            t.grad = None
+        fn(*tensors).backward(g_lib)
+
+    return run
+
+
+def run_ops(args: argparse.Namespace, torch: Any) -> int:
+    cases = [c for c in ops_cases(torch) if not args.filter or args.filter in f"{c.name} {c.shape_str}"]
+    header = ["op", "shape", "mipnet ms", "torch ms", "ratio", "GFLOP/s", f"% of {args.peak:g}"]
+    rows = []
+    for case in cases:
+        inputs = case.make_inputs(np.random.default_rng(0))
+        ours, theirs = _median_ms([_runner(case, inputs, lib, torch) for lib in ("mipnet", "torch")],
+                                  args.warmup, args.repeat)
+        gflops = case.flops / ours / 1e6 if case.flops else None
+        rows.append([case.name, case.shape_str, f"{ours:.2f}", f"{theirs:.2f}", f"{ours / theirs:.2f}",
+                     "" if gflops is None else f"{gflops:.0f}", "" if gflops is None else f"{100 * gflops / args.peak:.0f}%"])
+        print(f"  done: {case.name} {case.shape_str}", file=sys.stderr, flush=True)
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    line = lambda r: "  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths)))  # noqa: E731
+    print(f"threads={args.threads}  (median of {args.repeat} runs in 3 alternating blocks, each after {args.warmup} warm-up; ratio = mipnet / torch)")
+    print(line(header))
+    print("  ".join("-" * w for w in widths))
+    for r in rows:
+        print(line(r))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m mipnet.bench", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    ops = sub.add_parser("ops", help="per-kernel timings against torch")
+    ops.add_argument("--threads", type=int, default=2, help="threads for mipnet and torch (default 2)")
+    ops.add_argument("--repeat", type=int, default=15, help="timed runs per row and library (default 15)")
+    ops.add_argument("--warmup", type=int, default=1, help="untimed runs before each block (default 1)")
+    ops.add_argument("--filter", default="", help="only rows whose op or shape contains this text")
+    ops.add_argument("--peak", type=float, default=230.0, help="GFLOP/s taken as 100%% (default 230)")
+    args = parser.parse_args(argv)
+    try:
+        import torch
+    except ImportError:
+        print("mipnet.bench: torch is needed for the comparison rows; install it (pip install torch)", file=sys.stderr)
+        return 1
+    torch.set_num_threads(args.threads)
+    mipnet.set_num_threads(args.threads)
+    return run_ops(args, torch)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,132 @@
+"""conv2d against torch: forward and gradients for every kernel shape MIPNet uses, and the errors."""
+
+import numpy as np
+import pytest
+
+import mipnet
+import mipnet.ops as M
+from mipnet import _core
+from helpers import check_op, non_contiguous, rand, require_torch
+
+torch = require_torch()
+F = torch.nn.functional
+
+# (input shape, weight shape, stride, padding): the stem, resblocks, GRUs, heads, motion encoders.
+CASES = {
+    "7x7_s2_p3_odd": ((2, 3, 17, 13), (8, 3, 7, 7), 2, 3),
+    "5x5_p2": ((2, 2, 9, 12), (6, 2, 5, 5), 1, 2),
+    "3x3_p1": ((3, 5, 11, 9), (7, 5, 3, 3), 1, 1),
+    "3x3_s2_p1_odd": ((2, 4, 13, 11), (6, 4, 3, 3), 2, 1),
+    "1x1": ((2, 9, 7, 10), (5, 9, 1, 1), 1, 0),
+    "1x1_s2_odd": ((2, 6, 9, 11), (4, 6, 1, 1), 2, 0),
+    "1x5_p0_2": ((2, 6, 5, 11), (4, 6, 1, 5), 1, (0, 2)),
+    "5x1_p2_0": ((2, 6, 11, 5), (4, 6, 5, 1), 1, (2, 0)),
+    "3x3_s1x2_p0x1": ((1, 3, 8, 9), (4, 3, 3, 3), (1, 2), (0, 1)),
+    "3x3_tiled_48ch": ((2, 48, 45, 51), (16, 48, 3, 3), 1, 1),
+}
+
+
+def _inputs(xs, ws, seed=0):
+    # weights scaled like a trained layer so float32 sums stay within the default tolerances
+    scale = float(1.0 / np.sqrt(np.prod(ws[1:])))
+    return [rand(xs, seed=seed), rand(ws, seed=seed + 1) * scale, rand(ws[:1], seed=seed + 2)]
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("case", list(CASES))
+def test_conv2d_matches_torch(case, dtype):
+    xs, ws, stride, padding = CASES[case]
+    check_op(_inputs(xs, ws), lambda x, w, b: F.conv2d(x, w, b, stride, padding),
+             lambda x, w, b: M.conv2d(x, w, b, stride, padding), dtype=dtype)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_conv2d_without_bias_matches_torch(dtype):
+    x, w, _ = _inputs((2, 4, 10, 9), (5, 4, 3, 3))
+    check_op([x, w], lambda x, w: F.conv2d(x, w, None, 2, 1), lambda x, w: M.conv2d(x, w, stride=2, padding=1), dtype=dtype)
+
+
+def test_conv2d_detached_input_gives_weight_and_bias_grads_only():
+    # the motion encoders' flow input is detached: 5x5 conv with grads to weight and bias only
+    check_op(_inputs((2, 2, 12, 16), (8, 2, 5, 5)), lambda x, w, b: F.conv2d(x, w, b, padding=2),
+             lambda x, w, b: M.conv2d(x, w, b, padding=2), grad_inputs=[1, 2])
+
+
+def test_conv2d_non_contiguous_inputs_match_torch():
+    x, w, b = _inputs((2, 3, 9, 7), (4, 3, 3, 3))
+    ref = F.conv2d(torch.tensor(x), torch.tensor(w), torch.tensor(b), 2, 1).numpy()
+    # through the Tensor wrapper and straight into the kernel (which normalises the layout itself)
+    out = M.conv2d(mipnet.tensor(non_contiguous(x)), mipnet.tensor(non_contiguous(w)), b, 2, 1).numpy()
+    np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-5)
+    raw = _core.conv2d_fwd(non_contiguous(x), non_contiguous(w), b[::-1].copy()[::-1], (2, 2), (1, 1))
+    np.testing.assert_allclose(raw, ref, rtol=1e-5, atol=1e-5)
+    g = rand(ref.shape, seed=9)
+    dx, dw, db = _core.conv2d_bwd(non_contiguous(x), non_contiguous(w), non_contiguous(g), (2, 2), (1, 1))
+    xt, wt = torch.tensor(x, requires_grad=True), torch.tensor(w, requires_grad=True)
+    bt = torch.tensor(b, requires_grad=True)
+    F.conv2d(xt, wt, bt, 2, 1).backward(torch.tensor(g))
+    for ours, theirs in ((dx, xt.grad), (dw, wt.grad), (db, bt.grad)):
+        np.testing.assert_allclose(ours, theirs.numpy(), rtol=1e-4, atol=1e-4)
+
+
+def test_conv2d_accepts_numpy_arrays_and_valid_padding():
+    x, w, b = _inputs((1, 2, 6, 7), (3, 2, 3, 3))
+    ref = F.conv2d(torch.tensor(x), torch.tensor(w), torch.tensor(b)).numpy()
+    np.testing.assert_allclose(M.conv2d(x, w, b, padding="valid").numpy(), ref, rtol=1e-5, atol=1e-5)
+
+
+def test_conv2d_bwd_skips_grads_not_requested():
+    x, w, _ = _inputs((1, 2, 6, 7), (3, 2, 3, 3))
+    g = rand((1, 3, 6, 7), seed=3)
+    dx, dw, db = _core.conv2d_bwd(x, w, g, (1, 1), (1, 1), need_x=False, need_w=True, need_b=False)
+    assert dx is None and db is None and dw.shape == w.shape
+
+
+def _raises(match, fn, exc=RuntimeError):
+    with pytest.raises(exc, match=match):
+        fn()
+
+
+@pytest.mark.parametrize("xs,ws,bs,stride,padding,match", [
+    ((2, 3, 8, 8), (4, 5, 3, 3), None, 1, 1, r"conv2d.*weight\.shape\[1\].*\[2, 3, 8, 8\].*\[4, 5, 3, 3\]"),
+    ((3, 8, 8), (4, 3, 3, 3), None, 1, 1, r"conv2d: input must be a 4-D tensor.*\[3, 8, 8\]"),
+    ((2, 3, 8, 8), (4, 3, 3), None, 1, 1, r"conv2d: weight must be a 4-D tensor.*\[4, 3, 3\]"),
+    ((2, 3, 8, 8), (4, 3, 3, 3), (5,), 1, 1, r"conv2d: bias.*\[4, 3, 3, 3\].*\[5\]"),
+    ((1, 3, 4, 9), (2, 3, 7, 7), None, 1, 1, r"conv2d: the kernel .* padded input.*\[1, 3, 4, 9\].*\[2, 3, 7, 7\]"),
+    ((0, 3, 8, 8), (4, 3, 3, 3), None, 1, 1, r"conv2d: empty.*\[0, 3, 8, 8\]"),
+    ((2, 3, 8, 8), (4, 3, 0, 3), None, 1, 1, r"conv2d: empty.*\[4, 3, 0, 3\]"),
+    ((2, 3, 8, 8), (4, 3, 3, 3), None, 0, 1, r"conv2d: stride must be at least 1.*\[0, 0\]"),
+    ((2, 3, 8, 8), (4, 3, 3, 3), None, 1, -1, r"conv2d: padding must be non-negative"),
+])
+def test_conv2d_rejects_bad_shapes_and_arguments(xs, ws, bs, stride, padding, match):
+    b = None if bs is None else np.zeros(bs, np.float32)
+    _raises(match, lambda: M.conv2d(np.zeros(xs, np.float32), np.zeros(ws, np.float32), b, stride, padding))
+
+
+def test_conv2d_rejects_unsupported_torch_arguments():
+    x, w, _ = _inputs((1, 2, 6, 7), (3, 2, 3, 3))
+    _raises(r"conv2d: only dilation=1", lambda: M.conv2d(x, w, dilation=2), mipnet.errors.ArgumentError)
+    _raises(r"conv2d: only groups=1", lambda: M.conv2d(x, w, groups=2), mipnet.errors.ArgumentError)
+    _raises(r"conv2d: padding must be .* 'same'", lambda: M.conv2d(x, w, padding="same"), mipnet.errors.ArgumentError)
+    _raises(r"conv2d: stride must be an int or a pair", lambda: M.conv2d(x, w, stride=(1, 2, 3)), mipnet.errors.ArgumentError)
+
+
+def test_conv2d_rejects_wrong_and_mixed_dtypes():
+    x, w, b = _inputs((1, 2, 6, 7), (3, 2, 3, 3))
+    _raises(r"conv2d: inputs must share one dtype", lambda: M.conv2d(x, w.astype(np.float64), b), mipnet.errors.DTypeError)
+    _raises(r"conv2d: input must be a float32 or float64", lambda: _core.conv2d_fwd(x.astype(np.int32), w),
+            mipnet.errors.DTypeError)
+    _raises(r"conv2d: bias must be a float32", lambda: _core.conv2d_fwd(x, w, b.astype(np.float64)), mipnet.errors.DTypeError)
+    _raises(r"tensor: dtype must be float32 or float64", lambda: M.conv2d(x.astype(np.int64), w), mipnet.errors.DTypeError)
+
+
+def test_conv2d_bwd_rejects_grad_output_of_the_wrong_shape():
+    x, w, _ = _inputs((1, 2, 6, 7), (3, 2, 3, 3))
+    _raises(r"conv2d: grad_output must have shape \[1, 3, 6, 7\].*grad_output=\[1, 3, 6, 6\]",
+            lambda: _core.conv2d_bwd(x, w, np.zeros((1, 3, 6, 6), np.float32), (1, 1), (1, 1)))
+
+
+def test_gemm_fwd_matches_numpy_and_checks_shapes():
+    a, b = rand((70, 33)), rand((33, 90), seed=1)
+    np.testing.assert_allclose(_core.gemm_fwd(a, b), a @ b, rtol=1e-5, atol=1e-5)
+    _raises(r"gemm: a\.shape\[1\] must equal b\.shape\[0\].*\[70, 33\].*\[34, 90\]", lambda: _core.gemm_fwd(a, rand((34, 90))))

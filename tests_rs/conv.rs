@@ -1,0 +1,324 @@
+//! conv2d: forward against a direct sum and a closed form, f64 gradchecks of every gradient, thread-count
+//! independence, layouts, and the errors.
+mod common;
+
+use _core::ops::conv::{conv2d_bwd, conv2d_fwd, Conv2dCfg, Conv2dNeed};
+use common::{dot, gradcheck, max_abs_diff, Rng};
+use ndarray::{ArrayD, Ix4, IxDyn};
+
+/// y[n, o, i, j] = b[o] + Σ_{c, ki, kj} w[o, c, ki, kj] · x[n, c, i·sh + ki − ph, j·sw + kj − pw] (0 outside).
+fn conv_ref(x: &ArrayD<f64>, w: &ArrayD<f64>, b: Option<&ArrayD<f64>>, cfg: &Conv2dCfg) -> ArrayD<f64> {
+    let x = x.view().into_dimensionality::<Ix4>().unwrap();
+    let w = w.view().into_dimensionality::<Ix4>().unwrap();
+    let ((n, cin, h, wd), (cout, _, kh, kw)) = (x.dim(), w.dim());
+    let ([sh, sw], [ph, pw]) = (cfg.stride, cfg.padding);
+    let (ho, wo) = ((h + 2 * ph - kh) / sh + 1, (wd + 2 * pw - kw) / sw + 1);
+    let mut y = ArrayD::<f64>::zeros(IxDyn(&[n, cout, ho, wo]));
+    for ni in 0..n {
+        for o in 0..cout {
+            for i in 0..ho {
+                for j in 0..wo {
+                    let mut acc = b.map_or(0.0, |b| b[[o]]);
+                    for c in 0..cin {
+                        for ki in 0..kh {
+                            for kj in 0..kw {
+                                // input position (i·sh + ki − ph, j·sw + kj − pw), skipped in the padding
+                                let (iy, ix) = ((i * sh + ki) as isize - ph as isize, (j * sw + kj) as isize - pw as isize);
+                                if iy >= 0 && ix >= 0 && (iy as usize) < h && (ix as usize) < wd {
+                                    acc += w[[o, c, ki, kj]] * x[[ni, c, iy as usize, ix as usize]];
+                                }
+                            }
+                        }
+                    }
+                    y[[ni, o, i, j]] = acc;
+                }
+            }
+        }
+    }
+    y
+}
+
+/// (x shape, w shape, stride, padding): every kernel shape MIPNet uses, odd sizes, stride 2,
+/// asymmetric padding, the pointwise fast path, and a case large enough to span several tiles and
+/// dX channel chunks.
+/// (name, input shape, weight shape, stride, padding)
+type Case = (&'static str, [usize; 4], [usize; 4], [usize; 2], [usize; 2]);
+
+const CASES: &[Case] = &[
+    ("7x7_stride2_pad3", [2, 3, 13, 11], [4, 3, 7, 7], [2, 2], [3, 3]),
+    ("5x5_pad2", [1, 2, 9, 8], [3, 2, 5, 5], [1, 1], [2, 2]),
+    ("3x3_pad1", [2, 4, 7, 9], [5, 4, 3, 3], [1, 1], [1, 1]),
+    ("3x3_stride2_pad1", [2, 3, 9, 7], [4, 3, 3, 3], [2, 2], [1, 1]),
+    ("1x1", [3, 6, 5, 7], [4, 6, 1, 1], [1, 1], [0, 0]),
+    ("1x1_stride2", [2, 5, 7, 9], [3, 5, 1, 1], [2, 2], [0, 0]),
+    ("1x5_pad0_2", [2, 3, 6, 9], [4, 3, 1, 5], [1, 1], [0, 2]),
+    ("5x1_pad2_0", [2, 3, 9, 6], [4, 3, 5, 1], [1, 1], [2, 0]),
+    ("3x3_stride1x2_pad0x1", [1, 2, 8, 9], [3, 2, 3, 3], [1, 2], [0, 1]),
+    ("1x1_tiled", [1, 8, 40, 50], [5, 8, 1, 1], [1, 1], [0, 0]),
+    ("3x3_tiled_64ch", [2, 64, 53, 59], [6, 64, 3, 3], [1, 1], [1, 1]),
+];
+
+fn inputs(rng: &mut Rng, xs: &[usize], ws: &[usize]) -> (ArrayD<f64>, ArrayD<f64>, ArrayD<f64>) {
+    (rng.array(xs, -1.0, 1.0), rng.array(ws, -1.0, 1.0), rng.array(&[ws[0]], -1.0, 1.0))
+}
+
+#[test]
+fn conv2d_fwd_matches_direct_sum_for_every_kernel_shape_f64() {
+    let mut rng = Rng::new(3);
+    for &(name, xs, ws, stride, padding) in CASES {
+        let cfg = Conv2dCfg::new(stride, padding);
+        let (x, w, b) = inputs(&mut rng, &xs, &ws);
+        let y = conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap().into_dyn();
+        let err = max_abs_diff(&y, &conv_ref(&x, &w, Some(&b), &cfg));
+        assert!(err < 1e-12, "{name}: max abs err {err}");
+        let y0 = conv2d_fwd(x.view(), w.view(), None, &cfg).unwrap().into_dyn();
+        let err0 = max_abs_diff(&y0, &conv_ref(&x, &w, None, &cfg));
+        assert!(err0 < 1e-12, "{name} without bias: max abs err {err0}");
+    }
+}
+
+#[test]
+fn conv2d_fwd_f32_matches_f64_direct_sum() {
+    let mut rng = Rng::new(4);
+    let (name, xs, ws, stride, padding) = CASES[CASES.len() - 1];
+    let cfg = Conv2dCfg::new(stride, padding);
+    let (x, w, b) = inputs(&mut rng, &xs, &ws);
+    let (x32, w32, b32) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
+    let y = conv2d_fwd(x32.view(), w32.view(), Some(b32.view()), &cfg).unwrap().into_dyn().mapv(f64::from);
+    let err = max_abs_diff(&y, &conv_ref(&x, &w, Some(&b), &cfg));
+    assert!(err < 1e-4, "{name} f32: max abs err {err}");
+}
+
+#[test]
+fn conv2d_ones_kernel_counts_taps_inside_the_image() {
+    // All-ones 4x5 image, all-ones 3x3 kernel, padding 1, bias 0.5: each output is the number of taps
+    // that land inside the image (4 at corners, 6 on edges, 9 inside) plus 0.5.
+    let x = ArrayD::<f64>::ones(IxDyn(&[1, 1, 4, 5]));
+    let w = ArrayD::<f64>::ones(IxDyn(&[1, 1, 3, 3]));
+    let b = ndarray::arr1(&[0.5]).into_dyn();
+    let y = conv2d_fwd(x.view(), w.view(), Some(b.view()), &Conv2dCfg::new([1, 1], [1, 1])).unwrap();
+    let expect = [[4.5, 6.5, 6.5, 6.5, 4.5], [6.5, 9.5, 9.5, 9.5, 6.5], [6.5, 9.5, 9.5, 9.5, 6.5], [4.5, 6.5, 6.5, 6.5, 4.5]];
+    for i in 0..4 {
+        for j in 0..5 {
+            assert_eq!(y[[0, 0, i, j]], expect[i][j], "at ({i}, {j})");
+        }
+    }
+}
+
+#[test]
+fn conv2d_out_hw_follows_the_floor_formula() {
+    // (H + 2p − k) / s + 1, floored: (13 + 6 − 7) / 2 + 1 = 7, (11 + 6 − 7) / 2 + 1 = 6
+    assert_eq!(Conv2dCfg::new([2, 2], [3, 3]).out_hw(13, 11, 7, 7).unwrap(), (7, 6));
+    assert_eq!(Conv2dCfg::new([1, 1], [0, 2]).out_hw(6, 9, 1, 5).unwrap(), (6, 9));
+}
+
+/// Gradchecks dx, dw and db of one case. The loss is linear in each argument, so there are no kinks.
+fn gradcheck_case(name: &str, xs: [usize; 4], ws: [usize; 4], cfg: Conv2dCfg, seed: u64) {
+    let mut rng = Rng::new(seed);
+    let (x, w, b) = inputs(&mut rng, &xs, &ws);
+    let y = conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap();
+    let g = rng.array(y.shape(), -1.0, 1.0);
+    let grads = conv2d_bwd(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL).unwrap();
+    let loss = |x: &ArrayD<f64>, w: &ArrayD<f64>, b: &ArrayD<f64>| {
+        dot(&conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap().into_dyn(), &g)
+    };
+    gradcheck(&format!("{name} dx"), &x, &grads.x.unwrap().into_dyn(), |xp| loss(xp, &w, &b));
+    gradcheck(&format!("{name} dw"), &w, &grads.w.unwrap().into_dyn(), |wp| loss(&x, wp, &b));
+    gradcheck(&format!("{name} db"), &b, &grads.b.unwrap().into_dyn(), |bp| loss(&x, &w, bp));
+}
+
+#[test]
+fn conv2d_7x7_stride2_pad3_bwd_gradcheck_f64() {
+    gradcheck_case("7x7 s2 p3", [2, 3, 13, 11], [4, 3, 7, 7], Conv2dCfg::new([2, 2], [3, 3]), 10);
+}
+
+#[test]
+fn conv2d_5x5_pad2_bwd_gradcheck_f64() {
+    gradcheck_case("5x5 p2", [1, 2, 9, 8], [3, 2, 5, 5], Conv2dCfg::new([1, 1], [2, 2]), 11);
+}
+
+#[test]
+fn conv2d_3x3_pad1_bwd_gradcheck_f64() {
+    gradcheck_case("3x3 p1", [2, 4, 7, 9], [5, 4, 3, 3], Conv2dCfg::new([1, 1], [1, 1]), 12);
+}
+
+#[test]
+fn conv2d_3x3_stride2_pad1_odd_sizes_bwd_gradcheck_f64() {
+    gradcheck_case("3x3 s2 p1", [2, 3, 9, 7], [4, 3, 3, 3], Conv2dCfg::new([2, 2], [1, 1]), 13);
+}
+
+#[test]
+fn conv2d_1x1_pointwise_bwd_gradcheck_f64() {
+    gradcheck_case("1x1", [3, 6, 5, 7], [4, 6, 1, 1], Conv2dCfg::new([1, 1], [0, 0]), 14);
+}
+
+#[test]
+fn conv2d_1x1_pointwise_many_tiles_bwd_gradcheck_f64() {
+    gradcheck_case("1x1 tiled", [1, 8, 40, 50], [5, 8, 1, 1], Conv2dCfg::new([1, 1], [0, 0]), 19);
+}
+
+#[test]
+fn conv2d_1x1_stride2_bwd_gradcheck_f64() {
+    gradcheck_case("1x1 s2", [2, 5, 7, 9], [3, 5, 1, 1], Conv2dCfg::new([2, 2], [0, 0]), 15);
+}
+
+#[test]
+fn conv2d_1x5_pad0_2_and_5x1_pad2_0_bwd_gradcheck_f64() {
+    gradcheck_case("1x5 p(0,2)", [2, 3, 6, 9], [4, 3, 1, 5], Conv2dCfg::new([1, 1], [0, 2]), 16);
+    gradcheck_case("5x1 p(2,0)", [2, 3, 9, 6], [4, 3, 5, 1], Conv2dCfg::new([1, 1], [2, 0]), 17);
+}
+
+#[test]
+fn conv2d_3x3_many_tiles_and_channel_chunks_bwd_gradcheck_f64() {
+    gradcheck_case("3x3 64ch tiled", [2, 64, 53, 59], [6, 64, 3, 3], Conv2dCfg::new([1, 1], [1, 1]), 18);
+}
+
+#[test]
+fn conv2d_bwd_computes_only_the_requested_grads() {
+    let mut rng = Rng::new(20);
+    let cfg = Conv2dCfg::new([1, 1], [2, 2]);
+    let (x, w, _) = inputs(&mut rng, &[2, 2, 8, 9], &[3, 2, 5, 5]);
+    let g = rng.array(&[2, 3, 8, 9], -1.0, 1.0);
+    let all = conv2d_bwd(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL).unwrap();
+    // the flow input of the motion encoder is detached: weight and bias grads only
+    let some = conv2d_bwd(x.view(), w.view(), g.view(), &cfg, Conv2dNeed { x: false, w: true, b: true }).unwrap();
+    assert!(some.x.is_none());
+    assert_eq!(some.w.unwrap(), all.w.unwrap());
+    assert_eq!(some.b.unwrap(), all.b.unwrap());
+    let none = conv2d_bwd(x.view(), w.view(), g.view(), &cfg, Conv2dNeed { x: false, w: false, b: false }).unwrap();
+    assert!(none.x.is_none() && none.w.is_none() && none.b.is_none());
+}
+
+#[test]
+fn conv2d_results_do_not_depend_on_the_thread_count() {
+    let mut rng = Rng::new(21);
+    let (_, xs, ws, stride, padding) = CASES[CASES.len() - 1];
+    let cfg = Conv2dCfg::new(stride, padding);
+    let (x, w, b) = inputs(&mut rng, &xs, &ws);
+    let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
+    let g = rng.array(&[xs[0], ws[0], xs[2], xs[3]], -1.0, 1.0).mapv(|v| v as f32);
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let y = conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap();
+            (y, conv2d_bwd(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL).unwrap())
+        })
+    };
+    let (y1, g1) = run(1);
+    for threads in [2, 3, 5] {
+        let (yt, gt) = run(threads);
+        assert_eq!(y1, yt, "forward, {threads} threads");
+        assert_eq!(g1.x, gt.x, "dx, {threads} threads");
+        assert_eq!(g1.w, gt.w, "dw, {threads} threads");
+        assert_eq!(g1.b, gt.b, "db, {threads} threads");
+    }
+}
+
+#[test]
+fn conv2d_accepts_non_contiguous_views() {
+    let mut rng = Rng::new(22);
+    let cfg = Conv2dCfg::new([2, 2], [1, 1]);
+    let (x, w, b) = inputs(&mut rng, &[2, 3, 9, 7], &[4, 3, 3, 3]);
+    // the same values stored with H and W swapped, seen through a transposed view
+    let xt = x.view().permuted_axes(IxDyn(&[0, 1, 3, 2])).as_standard_layout().into_owned();
+    let xv = xt.view().permuted_axes(IxDyn(&[0, 1, 3, 2]));
+    let wt = w.view().permuted_axes(IxDyn(&[1, 0, 2, 3])).as_standard_layout().into_owned();
+    let wv = wt.view().permuted_axes(IxDyn(&[1, 0, 2, 3]));
+    assert!(!xv.is_standard_layout() && !wv.is_standard_layout());
+    let y = conv2d_fwd(xv.view(), wv.view(), Some(b.view()), &cfg).unwrap();
+    assert_eq!(y, conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap());
+    let g = rng.array(y.shape(), -1.0, 1.0);
+    let gt = g.view().permuted_axes(IxDyn(&[3, 2, 1, 0])).as_standard_layout().into_owned();
+    let gv = gt.view().permuted_axes(IxDyn(&[3, 2, 1, 0]));
+    let a = conv2d_bwd(xv, wv, gv, &cfg, Conv2dNeed::ALL).unwrap();
+    let c = conv2d_bwd(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL).unwrap();
+    assert_eq!((a.x, a.w, a.b), (c.x, c.w, c.b));
+}
+
+/// (what, input shape, weight shape, bias shape, cfg, substrings the message must contain)
+type ErrCase<'a> = (&'a str, &'a [usize], &'a [usize], Option<&'a [usize]>, Conv2dCfg, &'a [&'a str]);
+
+/// The error message of a failing forward.
+fn fwd_err(xs: &[usize], ws: &[usize], bs: Option<&[usize]>, cfg: Conv2dCfg) -> String {
+    let x = ArrayD::<f32>::zeros(IxDyn(xs));
+    let w = ArrayD::<f32>::zeros(IxDyn(ws));
+    let b = bs.map(|s| ArrayD::<f32>::zeros(IxDyn(s)));
+    conv2d_fwd(x.view(), w.view(), b.as_ref().map(|b| b.view()), &cfg).unwrap_err().to_string()
+}
+
+#[test]
+fn conv2d_rejects_bad_shapes_naming_op_and_shapes() {
+    let cfg = Conv2dCfg::new([1, 1], [1, 1]);
+    let cases: &[ErrCase] = &[
+        ("channel mismatch", &[2, 3, 8, 8], &[4, 5, 3, 3], None, cfg, &["[2, 3, 8, 8]", "[4, 5, 3, 3]", "weight.shape[1]"]),
+        ("3-D input", &[3, 8, 8], &[4, 3, 3, 3], None, cfg, &["input", "[3, 8, 8]", "4-D"]),
+        ("5-D weight", &[2, 3, 8, 8], &[4, 3, 3, 3, 1], None, cfg, &["weight", "[4, 3, 3, 3, 1]"]),
+        ("2-D bias", &[2, 3, 8, 8], &[4, 3, 3, 3], Some(&[4, 1]), cfg, &["bias", "[4, 1]"]),
+        ("bias length", &[2, 3, 8, 8], &[4, 3, 3, 3], Some(&[5]), cfg, &["bias", "[5]", "[4, 3, 3, 3]"]),
+        ("kernel larger than padded input", &[1, 3, 4, 9], &[2, 3, 7, 7], None, cfg, &["[1, 3, 4, 9]", "[2, 3, 7, 7]", "padded"]),
+        ("empty input", &[0, 3, 8, 8], &[4, 3, 3, 3], None, cfg, &["[0, 3, 8, 8]", "empty"]),
+        ("empty weight", &[2, 3, 8, 8], &[0, 3, 3, 3], None, cfg, &["[0, 3, 3, 3]", "empty"]),
+    ];
+    for (what, xs, ws, bs, cfg, needles) in cases {
+        let err = fwd_err(xs, ws, *bs, *cfg);
+        assert!(err.contains("conv2d"), "{what}: {err}");
+        for needle in *needles {
+            assert!(err.contains(needle), "{what}: {needle:?} not in {err:?}");
+        }
+    }
+}
+
+#[test]
+fn conv2d_rejects_zero_stride_and_overflowing_padding() {
+    let err = fwd_err(&[1, 1, 5, 5], &[1, 1, 3, 3], None, Conv2dCfg::new([0, 1], [1, 1]));
+    assert!(err.contains("conv2d") && err.contains("stride") && err.contains("[0, 1]"), "{err}");
+    let err = fwd_err(&[1, 1, 5, 5], &[1, 1, 3, 3], None, Conv2dCfg::new([1, 1], [usize::MAX, 0]));
+    assert!(err.contains("conv2d") && err.contains("padding"), "{err}");
+}
+
+#[test]
+fn conv2d_bwd_rejects_grad_output_of_the_wrong_shape() {
+    let x = ArrayD::<f64>::zeros(IxDyn(&[2, 3, 8, 8]));
+    let w = ArrayD::<f64>::zeros(IxDyn(&[4, 3, 3, 3]));
+    let g = ArrayD::<f64>::zeros(IxDyn(&[2, 4, 8, 7]));
+    let err = conv2d_bwd(x.view(), w.view(), g.view(), &Conv2dCfg::new([1, 1], [1, 1]), Conv2dNeed::ALL)
+        .unwrap_err()
+        .to_string();
+    for needle in ["conv2d", "grad_output", "[2, 4, 8, 7]", "[2, 4, 8, 8]", "[2, 3, 8, 8]", "[4, 3, 3, 3]"] {
+        assert!(err.contains(needle), "{needle:?} not in {err:?}");
+    }
+}
+
+#[test]
+fn gemm_f32_matches_f64_product_for_layouts_edges_and_beta() {
+    use _core::gemm::gemm;
+    use ndarray::{Array2, ShapeBuilder};
+    let mut rng = Rng::new(30);
+    // sizes straddling the AVX-512 kernel's 8 x 48 tiles and 384 / 192 / 480 blocks, and tiny ones
+    for &(m, k, n) in &[(128, 1152, 100), (7, 5, 3), (37, 800, 61), (200, 390, 1100), (1, 64, 2000), (130, 1, 50)] {
+        for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
+            let a64 = Array2::from_shape_simple_fn((m, k), || rng.uniform(-1.0, 1.0));
+            let b64 = Array2::from_shape_simple_fn((k, n), || rng.uniform(-1.0, 1.0));
+            let c64 = Array2::from_shape_simple_fn((m, n), || rng.uniform(-1.0, 1.0));
+            // stored transposed (column-major) when ta / tb: the same matrices through other strides
+            let store = |x: &Array2<f64>, t: bool| {
+                let mut s = Array2::<f32>::zeros(x.dim().set_f(t));
+                s.zip_mut_with(x, |d, &v| *d = v as f32);
+                s
+            };
+            let (a, b) = (store(&a64, ta), store(&b64, tb));
+            let mut c = c64.mapv(|v| v as f32);
+            gemm(0.5f32, a.view(), b.view(), 2.0, c.view_mut());
+            let a32 = a64.mapv(|v| v as f32 as f64);
+            let b32 = b64.mapv(|v| v as f32 as f64);
+            // C = 0.5·A·B + 2·C
+            let want = a32.dot(&b32) * 0.5 + c64.mapv(|v| v as f32 as f64) * 2.0;
+            let err = c.iter().zip(want.iter()).map(|(x, y)| (*x as f64 - y).abs()).fold(0.0, f64::max);
+            assert!(err < 1e-4 * (k as f64).sqrt().max(1.0), "{m}x{k}x{n} ta={ta} tb={tb}: err {err}");
+            // beta 0 must ignore NaN in C
+            let mut cn = Array2::<f32>::from_elem((m, n), f32::NAN);
+            gemm(1.0f32, a.view(), b.view(), 0.0, cn.view_mut());
+            assert!(cn.iter().all(|v| v.is_finite()), "{m}x{k}x{n}: NaN leaked through beta 0");
+        }
+    }
+}
