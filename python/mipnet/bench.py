@@ -3,6 +3,7 @@
 Usage::
 
     python -m mipnet.bench ops [--threads 2] [--repeat 15] [--warmup 1] [--filter conv] [--peak 230]
+    python -m mipnet.bench model [--threads 2] [--sizes 384x512 1088x1920] [--train-size 384x512]
 
 ``ops`` times each kernel row (forward, or forward + backward) with mipnet and with torch and prints
 a table: op, shape, mipnet ms and torch ms (medians of runs in alternating blocks, each after a
@@ -84,6 +85,64 @@ def conv_case(n: int, cin: int, cout: int, h: int, w: int, k: int, stride: int =
     )
 
 
+def _horizontal_grid(n: int, h: int, w: int) -> Callable[[np.random.Generator], np.ndarray]:
+    """A warp grid p + f with f_x = -disparity (0..20 px), f_y = 0, normalised with align_corners=True."""
+    def make(rng: np.random.Generator) -> np.ndarray:
+        xs = np.arange(w) - rng.uniform(0, 20, size=(n, h, w))
+        ys = np.broadcast_to(np.arange(h)[:, None], (n, h, w))
+        return np.stack([2 * xs / (w - 1) - 1, 2 * ys / (h - 1) - 1], -1).astype(np.float32)
+    return make
+
+
+def _torch_stereo_ops(torch: Any) -> dict[str, Callable[..., Any]]:
+    """The spec's (a.6, a.7, a.9) torch expressions of the fused stereo kernels."""
+    F = torch.nn.functional
+
+    def ip(fl, stack):
+        n, c, h, w = fl.shape
+        # (N,5,2,C/2,h,w) * (N,1,2,C/2,h,w) -> mean over C/2 -> channel 5*g + s
+        prod = stack.view(n, 5, 2, c // 2, h, w) * fl.view(n, 1, 2, c // 2, h, w)
+        return prod.mean(3).permute(0, 2, 1, 3, 4).reshape(n, 10, h, w)
+
+    def rls(fl, warped, rx=3, ry=1):
+        h, w = fl.shape[2:]
+        p = F.pad(warped, [rx, rx, ry, ry], mode="replicate")
+        return torch.cat([(fl * p[:, :, j:j + h, i:i + w]).mean(1, keepdim=True)
+                          for i in range(2 * rx + 1) for j in range(2 * ry + 1)], 1)
+
+    def convex(flow, mask, r=4):
+        n, d, h, w = flow.shape
+        weights = torch.softmax(mask.view(n, 1, 9, r, r, h, w), dim=2)
+        up = F.unfold(r * flow, [3, 3], padding=1).view(n, d, 9, 1, 1, h, w)
+        # (N,D,r,r,h,w) -> (N,D,h,r,w,r) -> (N,D,r*h,r*w)
+        return (weights * up).sum(2).permute(0, 1, 4, 2, 5, 3).reshape(n, d, r * h, r * w)
+
+    return {"ip": ip, "rls": rls, "convex": convex}
+
+
+def stereo_cases(torch: Any) -> list[BenchCase]:
+    """The stereo-op rows at MIPNet's 1/4 level of a 384x512 image (96x128)."""
+    t = _torch_stereo_ops(torch)
+    F = torch.nn.functional
+    h, w = 96, 128
+    cases = []
+    for backward in (False, True):
+        mode = " fwd+bwd" if backward else " fwd"
+        cases += [
+            BenchCase("grid_sample border" + mode, f"1x1280x{h}x{w}", lambda rng: [_randn(1, 1280, h, w)(rng), _horizontal_grid(1, h, w)(rng)],
+                      lambda x, g: M.grid_sample(x, g, padding_mode="border", align_corners=True),
+                      lambda x, g: F.grid_sample(x, g, padding_mode="border", align_corners=True),
+                      backward=backward, grad_inputs=[0]),
+            BenchCase("ip_correlation" + mode, f"1x256 . 1x1280 @ {h}x{w}", lambda rng: [_randn(1, 256, h, w)(rng), _randn(1, 1280, h, w)(rng)],
+                      lambda a, b: M.ip_correlation(a, b, groups=2), t["ip"], backward=backward),
+            BenchCase("rls_correlation 7x3" + mode, f"1x256 @ {h}x{w}", lambda rng: [_randn(1, 256, h, w)(rng), _randn(1, 256, h, w)(rng)],
+                      lambda a, b: M.rls_correlation(a, b, rx=3, ry=1), t["rls"], backward=backward),
+            BenchCase("convex_upsample x4" + mode, f"1x2 + 1x144 @ {h}x{w}", lambda rng: [_randn(1, 2, h, w)(rng), _randn(1, 144, h, w)(rng)],
+                      lambda f, m: M.convex_upsample(f, m, rate=4), t["convex"], backward=backward),
+        ]
+    return cases
+
+
 def ops_cases(torch: Any) -> list[BenchCase]:
     """The rows of ``ops``: one line per case."""
     m, k, n = 1024, 1152, 4096
@@ -98,6 +157,7 @@ def ops_cases(torch: Any) -> list[BenchCase]:
         conv_case(2, 352, 128, 24, 32, 3, backward=True, torch=torch),
         conv_case(2, 3, 64, 384, 512, 7, stride=2, torch=torch),
         conv_case(2, 3, 64, 384, 512, 7, stride=2, backward=True, torch=torch),
+        *stereo_cases(torch),
     ]
 
 
@@ -177,7 +237,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     ops.add_argument("--warmup", type=int, default=1, help="untimed runs before each block (default 1)")
     ops.add_argument("--filter", default="", help="only rows whose op or shape contains this text")
     ops.add_argument("--peak", type=float, default=230.0, help="GFLOP/s taken as 100%% (default 230)")
+    model = sub.add_parser("model", help="whole-network timings and peak memory against the torch reference")
+    model.add_argument("--threads", type=int, default=2, help="threads for mipnet and torch (default 2)")
+    model.add_argument("--sizes", nargs="+", default=["384x512", "1088x1920"], help="eval sizes HxW")
+    model.add_argument("--train-size", default="384x512", help="training-step size HxW")
+    model.add_argument("--train-batch", type=int, default=2)
     args = parser.parse_args(argv)
+    if args.command == "model":
+        from .bench_model import run as run_model
+
+        hw = lambda s: tuple(int(v) for v in s.lower().split("x"))  # noqa: E731
+        print(run_model(args.threads, [hw(s) for s in args.sizes], hw(args.train_size), args.train_batch))
+        return 0
     try:
         import torch
     except ImportError:
