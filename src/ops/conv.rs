@@ -41,6 +41,8 @@ const MIN_TILE: usize = 64;
 const MAX_TILE: usize = 1024;
 /// Tiles are a multiple of the AVX-512 GEMM micro-kernel's 48-column panel.
 const TILE_ALIGN: usize = 48;
+/// dY read per band of the input gradient (so that it is reused from cache by every channel chunk).
+const BAND_BYTES: usize = 2 << 20;
 /// Partial dW sums (the parallelism of the weight gradient; fixed, so dW does not depend on the threads).
 const DW_GROUPS: usize = 4;
 /// Rows (channels · taps, whole channels) of a forward cols block and of a dX task's dcols, about:
@@ -463,43 +465,56 @@ pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>
     Ok(Conv2dGrads { x: dx, w: dw, b: db })
 }
 
-/// dX, by tasks (image, input-channel chunk) that each own dX[n, chunk].
+/// dX, by tasks (image, input-channel chunk) that each own dX[n, chunk]. The tiles are taken in
+/// bands of about [`BAND_BYTES`] of dY, all tasks finishing one band before the next starts, so a
+/// band of dY is read from memory once and then from cache by every chunk.
 fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
     let taps = g.kh * g.kw;
     let (plane, out_len) = (g.h * g.w, g.cout * g.pix());
-    // Fewest chunks the row cap allows; more when the threads need more tasks.
+    // Fewest chunks the row cap allows; more when the threads need more tasks (a multiple of them).
+    let threads = rayon::current_num_threads();
     let min_chunks = g.k().div_ceil(CHUNK_ROWS).min(g.cin);
-    let chunks = min_chunks.max((4 * rayon::current_num_threads()).div_ceil(g.n)).min(g.cin);
+    let chunks = (2 * threads).div_ceil(g.n).max(min_chunks).next_multiple_of(threads).min(g.cin);
     let cc = g.cin.div_ceil(chunks);
     // The tile depends on the shapes only (the widest chunk), so the sums do not depend on the threads.
     let tile = tile_len::<F>(g.pix(), g.cin.div_ceil(min_chunks) * taps, 1);
+    let band = tile * (BAND_BYTES / (g.cout * tile * std::mem::size_of::<F>()).max(1)).max(1);
     let mut dx = Array3::<F>::zeros((g.n, g.cin, plane));
-    dx.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut dxn)| {
-        let dyn_ = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?;
-        dxn.axis_chunks_iter_mut(Axis(0), cc).into_par_iter().enumerate().try_for_each(|(ci, mut dxc)| {
-            let chans = ci * cc..ci * cc + dxc.nrows();
-            let rows = chans.len() * taps;
-            // W[:, chunk]ᵀ: [rows, Cout]
-            let wt = wm.slice(s![.., chans.start * taps..chans.end * taps]).reversed_axes();
-            for px in tiles(g.pix(), tile) {
-                let dyt = dyn_.slice(s![.., px.clone()]);
-                if g.pointwise() {
-                    // dX[n, chunk, tile] = W[:, chunk]ᵀ · dY[n][:, tile]
-                    gemm(F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]));
-                    continue;
+    if let (false, Some(d)) = (g.pointwise(), dx.as_slice_mut()) {
+        // Claim the pages with writes: col2im's first access is a read-modify-write, and writing a
+        // page first read as the shared zero page costs a copy-on-write fault and a TLB flush on
+        // every CPU (a third of the time of a large dX on 2 cores).
+        d.par_chunks_mut(1 << 16).for_each(|c| c.fill(F::zero()));
+    }
+    for b0 in (0..g.pix()).step_by(band) {
+        let band = b0..(b0 + band).min(g.pix());
+        dx.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut dxn)| {
+            let dyn_ = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?;
+            dxn.axis_chunks_iter_mut(Axis(0), cc).into_par_iter().enumerate().try_for_each(|(ci, mut dxc)| {
+                let chans = ci * cc..ci * cc + dxc.nrows();
+                let rows = chans.len() * taps;
+                // W[:, chunk]ᵀ: [rows, Cout]
+                let wt = wm.slice(s![.., chans.start * taps..chans.end * taps]).reversed_axes();
+                for px in tiles(band.len(), tile).map(|t| band.start + t.start..band.start + t.end) {
+                    let dyt = dyn_.slice(s![.., px.clone()]);
+                    if g.pointwise() {
+                        // dX[n, chunk, tile] = W[:, chunk]ᵀ · dY[n][:, tile]
+                        gemm(F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]));
+                        continue;
+                    }
+                    let dxs = dxc.as_slice_mut().ok_or_else(|| Error::shape(OP, "internal layout error: dx", &[]))?;
+                    with_scratch(rows * px.len(), |buf: &mut [F]| {
+                        let dcols = ArrayViewMut2::from_shape((rows, px.len()), &mut *buf).map_err(layout)?;
+                        // dcols = W[:, chunk]ᵀ · dY[n][:, tile]
+                        gemm(F::one(), wt, dyt, F::zero(), dcols);
+                        col2im(g, buf, chans.len(), px.clone(), dxs);
+                        Ok::<_, Error>(())
+                    })?;
                 }
-                let dxs = dxc.as_slice_mut().ok_or_else(|| Error::shape(OP, "internal layout error: dx", &[]))?;
-                with_scratch(rows * px.len(), |buf: &mut [F]| {
-                    let dcols = ArrayViewMut2::from_shape((rows, px.len()), &mut *buf).map_err(layout)?;
-                    // dcols = W[:, chunk]ᵀ · dY[n][:, tile]
-                    gemm(F::one(), wt, dyt, F::zero(), dcols);
-                    col2im(g, buf, chans.len(), px.clone(), dxs);
-                    Ok::<_, Error>(())
-                })?;
-            }
-            Ok(())
-        })
-    })?;
+                Ok::<_, Error>(())
+            })
+        })?;
+    }
     dx.into_shape_with_order((g.n, g.cin, g.h, g.w)).map_err(layout)
 }
 
