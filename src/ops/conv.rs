@@ -3,19 +3,20 @@
 //!
 //! | op | forward | backward (grads to) |
 //! |---|---|---|
-//! | conv2d | `conv2d_fwd`: Y[n] = W · cols(x[n]) + b | `conv2d_bwd`: dX = col2im(Wᵀ · dY), dW = Σ dY · colsᵀ, db = Σ dY |
+//! | conv2d | `conv2d_fwd`: `Y[n]` = W · cols(`x[n]`) + b | `conv2d_bwd`: dX = col2im(Wᵀ · dY), dW = Σ dY · colsᵀ, db = Σ dY |
 //!
-//! W is the matrix [Cout, K] with K = Cin·kh·kw, and cols(x[n]) the matrix [K, Ho·Wo] whose column p
+//! W is the matrix `[Cout, K]` with K = Cin·kh·kw, and cols(`x[n]`) the matrix `[K, Ho·Wo]` whose column p
 //! holds the receptive field of output pixel p. It is never built whole (a 3x3 352->128 conv at
 //! 272x480 would need 1.6 GB): a task builds the columns of one range of output pixels (a tile) in
-//! its thread's scratch buffer of at most [`SCRATCH_BYTES`] (more only when one K x [`MIN_TILE`]
-//! block is larger). A 1x1, stride-1, unpadded conv uses x[n] itself as cols. Every result is
+//! its thread's scratch buffer of at most `SCRATCH_BYTES` (more only when one K x `MIN_TILE`
+//! block is larger). A 1x1, stride-1, unpadded conv uses `x[n]` itself as cols. Every result is
 //! deterministic and independent of the number of threads:
-//! - forward: tasks (image, tile); cols are built [`CHUNK_ROWS`] rows (whole channels) at a time,
-//!   each block added by Y[n][:, tile] += W[:, block] · cols[block, tile] while it is in cache;
-//! - dX: tasks (image, input-channel chunk), each owning dX[n, chunk] and running over the tiles in
-//!   order: dcols = W[:, chunk]ᵀ · dY[n][:, tile], scattered back by col2im;
-//! - dW: the (image, tile) list is cut into [`DW_GROUPS`] contiguous groups fixed by the shapes; each
+//! - forward: tasks (image, tile); cols are built `CHUNK_ROWS` rows (whole channels) at a time,
+//!   each block added by `Y[n][:, tile]` += `W[:, block]` · `cols[block, tile]` while it is in cache;
+//! - dX: tasks (image, input-channel chunk), each owning `dX[n, chunk]` and running over the tiles in
+//!   order (in bands of `BAND_BYTES` of dY shared by all tasks): dcols = `W[:, chunk]ᵀ` · `dY[n][:, tile]`,
+//!   scattered back by col2im;
+//! - dW: the (image, tile) list is cut into `DW_GROUPS` contiguous groups fixed by the shapes; each
 //!   group sums dY·colsᵀ over its tiles with one GEMM per tile (cols for all of K) into its own
 //!   partial, and the partials are added in group order;
 //! - db: per output channel, Σ over images and pixels in order.
@@ -161,7 +162,7 @@ impl Geom {
     fn img(&self) -> usize {
         self.cin * self.h * self.w
     }
-    /// 1x1, stride 1, no padding: cols(x[n]) is x[n] seen as [Cin, H·W].
+    /// 1x1, stride 1, no padding: cols(`x[n]`) is `x[n]` seen as `[Cin, H·W]`.
     fn pointwise(&self) -> bool {
         self.kh == 1 && self.kw == 1 && self.stride == [1, 1] && self.pad == [0, 0]
     }
@@ -178,7 +179,7 @@ fn layout(e: ndarray::ShapeError) -> Error {
 }
 
 /// Pixels per tile: at most what fits `rows` x tile in the scratch budget, at least `min_tiles`
-/// tiles per image, never below [`MIN_TILE`] (unless the image is smaller), a multiple of [`TILE_ALIGN`].
+/// tiles per image, never below `MIN_TILE` (unless the image is smaller), a multiple of `TILE_ALIGN`.
 fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize) -> usize {
     let budget = SCRATCH_BYTES / std::mem::size_of::<F>() / rows.max(1);
     let split = pix.div_ceil(min_tiles.max(1));
@@ -226,7 +227,7 @@ fn with_buf<F: Float, R>(slot: &'static LocalKey<Slot>, len: usize, f: impl FnOn
     })
 }
 
-/// [`with_buf`] on [`SCRATCH`]. `f` must not call into rayon (a task stolen meanwhile would find the
+/// `with_buf` on `SCRATCH`. `f` must not call into rayon (a task stolen meanwhile would find the
 /// buffer taken and allocate its own).
 fn with_scratch<F: Float, R>(len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
     with_buf(&SCRATCH, len, f)
@@ -234,7 +235,7 @@ fn with_scratch<F: Float, R>(len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
 
 /// A run of consecutive output pixels of one output row, for one kernel tap (ki, kj): positions
 /// `j0..j0 + lead + valid + trail` of a cols row. `lead` and `trail` pixels read the zero padding;
-/// the `valid` ones read x[iy, ix0 + t·sw], t = 0..valid. `iy` is None when the whole run reads a
+/// the `valid` ones read `x[iy, ix0 + t·sw]`, t = 0..valid. `iy` is None when the whole run reads a
 /// padding row.
 struct Run {
     j0: usize,
@@ -270,7 +271,7 @@ fn for_each_run(g: &Geom, ki: usize, kj: usize, tile: Range<usize>, mut f: impl 
     }
 }
 
-/// cols[(c − c0)·kh·kw + ki·kw + kj, j] = x[c, oy·sh + ki − ph, ox·sw + kj − pw] (0 in the padding)
+/// `cols[(c − c0)·kh·kw + ki·kw + kj, j]` = `x[c, oy·sh + ki − ph, ox·sw + kj − pw]` (0 in the padding)
 /// for the output pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), and c in `chans`.
 fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>, cols: &mut [F]) {
     let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
@@ -305,7 +306,7 @@ fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
     }
 }
 
-/// The adjoint of [`im2col`]: dx[c − c0, iy, ix] += dcols[row(c, ki, kj), j] for every tap that
+/// The adjoint of `im2col`: `dx[c − c0, iy, ix]` += `dcols[row(c, ki, kj), j]` for every tap that
 /// reads x (padding taps are dropped), in a fixed order (channel, tap, pixel).
 fn col2im<F: Float>(g: &Geom, dcols: &[F], nchans: usize, tile: Range<usize>, dx: &mut [F]) {
     let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
@@ -331,13 +332,13 @@ fn col2im<F: Float>(g: &Geom, dcols: &[F], nchans: usize, tile: Range<usize>, dx
     }
 }
 
-/// Input channels per row block of cols: whole channels, about [`CHUNK_ROWS`] rows, evenly split.
+/// Input channels per row block of cols: whole channels, about `CHUNK_ROWS` rows, evenly split.
 fn block_chans(g: &Geom) -> usize {
     let blocks = g.cin.div_ceil((CHUNK_ROWS / (g.kh * g.kw)).max(1));
     g.cin.div_ceil(blocks)
 }
 
-/// Calls `f(rows, cols)` on consecutive row blocks of cols(x[n])[:, tile] covering the input
+/// Calls `f(rows, cols)` on consecutive row blocks of cols(`x[n]``)[:, tile]` covering the input
 /// channels `chans`, `cc` whole channels per block (rows c·taps..(c + 1)·taps for channel c): x itself
 /// (one block) for a pointwise conv, else im2col of one block at a time into this thread's scratch,
 /// so the GEMM packs it while it is still in cache.
@@ -361,12 +362,12 @@ fn for_each_cols_block<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, cc: us
     })
 }
 
-/// Rows of scratch per tile pixel that [`for_each_cols_block`] needs for blocks of `cc` channels.
+/// Rows of scratch per tile pixel that `for_each_cols_block` needs for blocks of `cc` channels.
 fn scratch_rows(g: &Geom, cc: usize) -> usize {
     if g.pointwise() { 0 } else { cc * g.kh * g.kw }
 }
 
-/// A contiguous standard-layout slice seen as a [rows, cols] matrix.
+/// A contiguous standard-layout slice seen as a `[rows, cols]` matrix.
 fn mat<F>(data: &[F], rows: usize, cols: usize) -> Result<ArrayView2<'_, F>> {
     ArrayView2::from_shape((rows, cols), data).map_err(layout)
 }
@@ -392,7 +393,7 @@ impl<'a, F: Float> Operands<'a, F> {
     fn x(&self) -> Result<&[F]> {
         self.x.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: input", &[]))
     }
-    /// W as the matrix [Cout, K].
+    /// W as the matrix `[Cout, K]`.
     fn wmat(&self) -> Result<ArrayView2<'_, F>> {
         let ws = self.w.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: weight", &[]))?;
         mat(ws, self.g.cout, self.g.k())
@@ -406,7 +407,7 @@ impl<'a, F: Float> Operands<'a, F> {
 /// Ho = (H + 2·ph − kh) / sh + 1 and Wo = (W + 2·pw − kw) / sw + 1.
 ///
 /// # Gradient
-/// y[n, o, i, j] = b[o] + Σ_{c, ki, kj} w[o, c, ki, kj] · x[n, c, i·sh + ki − ph, j·sw + kj − pw]; see `conv2d_bwd`.
+/// `y[n, o, i, j]` = `b[o]` + Σ_{c, ki, kj} `w[o, c, ki, kj]` · `x[n, c, i·sh + ki − ph, j·sw + kj − pw]`; see `conv2d_bwd`.
 ///
 /// Torch: `F.conv2d(x, w, b, stride=cfg.stride, padding=cfg.padding)`.
 pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg) -> Result<Array4<F>> {
@@ -444,7 +445,7 @@ pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayV
 /// x (N, Cin, H, W), w (Cout, Cin, kh, kw), g (N, Cout, Ho, Wo) -> dx like x, dw like w, db (Cout).
 ///
 /// # Gradient
-/// dX[n] = col2im(Wᵀ · dY[n]); dW = Σ_n dY[n] · cols(x[n])ᵀ; db[o] = Σ_{n,i,j} dY[n, o, i, j].
+/// `dX[n]` = col2im(Wᵀ · `dY[n]`); dW = Σ_n `dY[n]` · cols(`x[n]`)ᵀ; `db[o]` = Σ_{n,i,j} `dY[n, o, i, j]`.
 ///
 /// Torch: `torch.autograd.grad(F.conv2d(x, w, b, stride, padding), (x, w, b), g)`.
 pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg,
@@ -465,8 +466,8 @@ pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>
     Ok(Conv2dGrads { x: dx, w: dw, b: db })
 }
 
-/// dX, by tasks (image, input-channel chunk) that each own dX[n, chunk]. The tiles are taken in
-/// bands of about [`BAND_BYTES`] of dY, all tasks finishing one band before the next starts, so a
+/// dX, by tasks (image, input-channel chunk) that each own `dX[n, chunk]`. The tiles are taken in
+/// bands of about `BAND_BYTES` of dY, all tasks finishing one band before the next starts, so a
 /// band of dY is read from memory once and then from cache by every chunk.
 fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
     let taps = g.kh * g.kw;
@@ -518,9 +519,9 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
     dx.into_shape_with_order((g.n, g.cin, g.h, g.w)).map_err(layout)
 }
 
-/// dW, as [`DW_GROUPS`] partial sums over contiguous runs of (image, tile), fixed by the shapes and
+/// dW, as `DW_GROUPS` partial sums over contiguous runs of (image, tile), fixed by the shapes and
 /// added in group order. Each tile builds cols for all of K, so one GEMM packs dY once per tile.
-/// Group 0 sums straight into dW, the others into this thread's reused [`PARTIALS`] buffer; the
+/// Group 0 sums straight into dW, the others into this thread's reused `PARTIALS` buffer; the
 /// first tile of a group overwrites (beta 0), so no buffer needs clearing.
 fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
     let (out_len, wlen) = (g.cout * g.pix(), g.cout * g.k());
@@ -555,7 +556,7 @@ fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
     dw.into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout)
 }
 
-/// db[o] = Σ_n Σ_p dY[n, o, p], in order.
+/// `db[o]` = Σ_n Σ_p `dY[n, o, p]`, in order.
 fn bias_grad<F: Float>(g: &Geom, dy: &[F]) -> Array1<F> {
     let pix = g.pix();
     let sums: Vec<F> = (0..g.cout)
