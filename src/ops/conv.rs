@@ -271,6 +271,43 @@ fn for_each_run(g: &Geom, ki: usize, kj: usize, tile: Range<usize>, mut f: impl 
     }
 }
 
+/// For stride 1 and Wo = W (padding (kw − 1) / 2 on each side of a row), tap (ki, kj) reads x at a
+/// constant offset of the flat output index: `x_flat[p + d]`, d = (ki − ph)·W + (kj − pw). Returns
+/// d and the part of `tile` where p + d lies in the plane; outside it the tap reads padding rows.
+/// Within it, only the wrapped columns (see `wrapped_cols`) read padding.
+fn shift_span(g: &Geom, ki: usize, kj: usize, tile: &Range<usize>) -> Option<(isize, Range<usize>)> {
+    if g.stride != [1, 1] || g.wo != g.w {
+        return None;
+    }
+    let (w, plane) = (g.w as isize, (g.h * g.w) as isize);
+    // d = (ki − ph)·W + (kj − pw); p + d in [0, plane) <=> p in [−d, plane − d)
+    let d = (ki as isize - g.pad[0] as isize) * w + kj as isize - g.pad[1] as isize;
+    let (t0, t1) = (tile.start as isize, tile.end as isize);
+    let lo = (-d).clamp(t0, t1);
+    let hi = (plane - d).clamp(lo, t1);
+    Some((d, lo as usize..hi as usize))
+}
+
+/// Calls `f(j range)` on the positions j of a cols row (p = tile.start + j) whose output column ox
+/// reads across a row edge for tap column kj: ix = ox + kj − pw outside [0, W), i.e. ox below
+/// pw − kj or from W + pw − kj on (only with Wo = W).
+fn wrapped_cols(g: &Geom, kj: usize, tile: &Range<usize>, mut f: impl FnMut(Range<usize>)) {
+    let left = g.pad[1].saturating_sub(kj).min(g.w);
+    let right = (g.w + g.pad[1]).saturating_sub(kj).min(g.w);
+    if left == 0 && right == g.w {
+        return;
+    }
+    for oy in tile.start / g.w..tile.end.div_ceil(g.w) {
+        // output columns [0, left) and [right, W) of output row oy, clipped to the tile
+        for cols in [0..left, right..g.w] {
+            let (a, b) = ((oy * g.w + cols.start).max(tile.start), (oy * g.w + cols.end).min(tile.end));
+            if a < b {
+                f(a - tile.start..b - tile.start);
+            }
+        }
+    }
+}
+
 /// `cols[(c − c0)·kh·kw + ki·kw + kj, j]` = `x[c, oy·sh + ki − ph, ox·sw + kj − pw]` (0 in the padding)
 /// for the output pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), and c in `chans`.
 fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>, cols: &mut [F]) {
@@ -281,6 +318,18 @@ fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
         for ki in 0..g.kh {
             for kj in 0..g.kw {
                 let Some(dst) = rows.next() else { return };
+                if let Some((d, span)) = shift_span(g, ki, kj, &tile) {
+                    // cols[r, j] = x_flat[p + d] on the span, 0 around it and on the wrapped columns
+                    let (a, b) = (span.start - tile.start, span.end - tile.start);
+                    dst[..a].fill(F::zero());
+                    dst[b..].fill(F::zero());
+                    if a < b {
+                        let src = (span.start as isize + d) as usize;
+                        dst[a..b].copy_from_slice(&xc[src..src + (b - a)]);
+                    }
+                    wrapped_cols(g, kj, &tile, |js| dst[js].fill(F::zero()));
+                    continue;
+                }
                 for_each_run(g, ki, kj, tile.clone(), |r| {
                     let d = &mut dst[r.j0..r.j0 + r.lead + r.valid + r.trail];
                     let (lead, rest) = d.split_at_mut(r.lead);
@@ -308,13 +357,24 @@ fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
 
 /// The adjoint of `im2col`: `dx[c − c0, iy, ix]` += `dcols[row(c, ki, kj), j]` for every tap that
 /// reads x (padding taps are dropped), in a fixed order (channel, tap, pixel).
-fn col2im<F: Float>(g: &Geom, dcols: &[F], nchans: usize, tile: Range<usize>, dx: &mut [F]) {
+fn col2im<F: Float>(g: &Geom, dcols: &mut [F], nchans: usize, tile: Range<usize>, dx: &mut [F]) {
     let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
-    let mut rows = dcols.chunks_exact(len);
+    let mut rows = dcols.chunks_exact_mut(len);
     for dxc in dx.chunks_exact_mut(plane).take(nchans) {
         for ki in 0..g.kh {
             for kj in 0..g.kw {
                 let Some(src) = rows.next() else { return };
+                if let Some((d, span)) = shift_span(g, ki, kj, &tile) {
+                    // dx_flat[p + d] += dcols[r, j] on the span, the wrapped columns zeroed first
+                    wrapped_cols(g, kj, &tile, |js| src[js].fill(F::zero()));
+                    let (a, b) = (span.start - tile.start, span.end - tile.start);
+                    if a < b {
+                        let dst = (span.start as isize + d) as usize;
+                        dxc[dst..dst + (b - a)].iter_mut().zip(&src[a..b]).for_each(|(x, &v)| *x += v);
+                    }
+                    continue;
+                }
+                let src = &*src;
                 for_each_run(g, ki, kj, tile.clone(), |r| {
                     if let Some(iy) = r.iy {
                         let s = &src[r.j0 + r.lead..r.j0 + r.lead + r.valid];
@@ -338,7 +398,7 @@ fn block_chans(g: &Geom) -> usize {
     g.cin.div_ceil(blocks)
 }
 
-/// Calls `f(rows, cols)` on consecutive row blocks of cols(`x[n]``)[:, tile]` covering the input
+/// Calls `f(rows, cols)` on consecutive row blocks of `cols(x[n])[:, tile]` covering the input
 /// channels `chans`, `cc` whole channels per block (rows c·taps..(c + 1)·taps for channel c): x itself
 /// (one block) for a pointwise conv, else im2col of one block at a time into this thread's scratch,
 /// so the GEMM packs it while it is still in cache.
@@ -508,7 +568,7 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
                         let dcols = ArrayViewMut2::from_shape((rows, px.len()), &mut *buf).map_err(layout)?;
                         // dcols = W[:, chunk]ᵀ · dY[n][:, tile]
                         gemm(F::one(), wt, dyt, F::zero(), dcols);
-                        col2im(g, buf, chans.len(), px.clone(), dxs);
+                        col2im(g, &mut buf[..rows * px.len()], chans.len(), px.clone(), dxs);
                         Ok::<_, Error>(())
                     })?;
                 }
