@@ -54,6 +54,8 @@ const CASES: &[Case] = &[
     ("1x5_pad0_2", [2, 3, 6, 9], [4, 3, 1, 5], [1, 1], [0, 2]),
     ("5x1_pad2_0", [2, 3, 9, 6], [4, 3, 5, 1], [1, 1], [2, 0]),
     ("3x3_stride1x2_pad0x1", [1, 2, 8, 9], [3, 2, 3, 3], [1, 2], [0, 1]),
+    ("3x3_pad0x1", [2, 3, 7, 8], [4, 3, 3, 3], [1, 1], [0, 1]),
+    ("3x3_pad1_tile_in_last_row", [1, 2, 11, 9], [3, 2, 3, 3], [1, 1], [1, 1]),
     ("1x1_tiled", [1, 8, 40, 50], [5, 8, 1, 1], [1, 1], [0, 0]),
     ("3x3_tiled_64ch", [2, 64, 53, 59], [6, 64, 3, 3], [1, 1], [1, 1]),
 ];
@@ -145,6 +147,19 @@ fn conv2d_3x3_pad1_bwd_gradcheck_f64() {
 #[test]
 fn conv2d_3x3_stride2_pad1_odd_sizes_bwd_gradcheck_f64() {
     gradcheck_case("3x3 s2 p1", [2, 3, 9, 7], [4, 3, 3, 3], Conv2dCfg::new([2, 2], [1, 1]), 13);
+}
+
+#[test]
+fn conv2d_3x3_pad0x1_rows_shrink_bwd_gradcheck_f64() {
+    // stride 1 and Wo = W but Ho = H − 2: the flat-shift im2col with padding rows on neither side
+    gradcheck_case("3x3 p(0,1)", [2, 3, 7, 8], [4, 3, 3, 3], Conv2dCfg::new([1, 1], [0, 1]), 23);
+}
+
+#[test]
+fn conv2d_3x3_pad1_tile_within_padding_taps_bwd_gradcheck_f64() {
+    // 99 pixels in tiles of 96 and 3: the last tile lies in the last output row, where the bottom
+    // taps read only padding (an empty span of the flat-shift im2col)
+    gradcheck_case("3x3 p1 99 px", [1, 2, 11, 9], [3, 2, 3, 3], Conv2dCfg::new([1, 1], [1, 1]), 24);
 }
 
 #[test]

@@ -3,19 +3,20 @@
 //!
 //! | op | forward | backward (grads to) |
 //! |---|---|---|
-//! | conv2d | `conv2d_fwd`: Y[n] = W · cols(x[n]) + b | `conv2d_bwd`: dX = col2im(Wᵀ · dY), dW = Σ dY · colsᵀ, db = Σ dY |
+//! | conv2d | `conv2d_fwd`: `Y[n]` = W · cols(`x[n]`) + b | `conv2d_bwd`: dX = col2im(Wᵀ · dY), dW = Σ dY · colsᵀ, db = Σ dY |
 //!
-//! W is the matrix [Cout, K] with K = Cin·kh·kw, and cols(x[n]) the matrix [K, Ho·Wo] whose column p
+//! W is the matrix `[Cout, K]` with K = Cin·kh·kw, and cols(`x[n]`) the matrix `[K, Ho·Wo]` whose column p
 //! holds the receptive field of output pixel p. It is never built whole (a 3x3 352->128 conv at
 //! 272x480 would need 1.6 GB): a task builds the columns of one range of output pixels (a tile) in
-//! its thread's scratch buffer of at most [`SCRATCH_BYTES`] (more only when one K x [`MIN_TILE`]
-//! block is larger). A 1x1, stride-1, unpadded conv uses x[n] itself as cols. Every result is
+//! its thread's scratch buffer of at most `SCRATCH_BYTES` (more only when one K x `MIN_TILE`
+//! block is larger). A 1x1, stride-1, unpadded conv uses `x[n]` itself as cols. Every result is
 //! deterministic and independent of the number of threads:
-//! - forward: tasks (image, tile); cols are built [`CHUNK_ROWS`] rows (whole channels) at a time,
-//!   each block added by Y[n][:, tile] += W[:, block] · cols[block, tile] while it is in cache;
-//! - dX: tasks (image, input-channel chunk), each owning dX[n, chunk] and running over the tiles in
-//!   order: dcols = W[:, chunk]ᵀ · dY[n][:, tile], scattered back by col2im;
-//! - dW: the (image, tile) list is cut into [`DW_GROUPS`] contiguous groups fixed by the shapes; each
+//! - forward: tasks (image, tile); cols are built `CHUNK_ROWS` rows (whole channels) at a time,
+//!   each block added by `Y[n][:, tile]` += `W[:, block]` · `cols[block, tile]` while it is in cache;
+//! - dX: tasks (image, input-channel chunk), each owning `dX[n, chunk]` and running over the tiles in
+//!   order (in bands of `BAND_BYTES` of dY shared by all tasks): dcols = `W[:, chunk]ᵀ` · `dY[n][:, tile]`,
+//!   scattered back by col2im;
+//! - dW: the (image, tile) list is cut into `DW_GROUPS` contiguous groups fixed by the shapes; each
 //!   group sums dY·colsᵀ over its tiles with one GEMM per tile (cols for all of K) into its own
 //!   partial, and the partials are added in group order;
 //! - db: per output channel, Σ over images and pixels in order.
@@ -41,6 +42,8 @@ const MIN_TILE: usize = 64;
 const MAX_TILE: usize = 1024;
 /// Tiles are a multiple of the AVX-512 GEMM micro-kernel's 48-column panel.
 const TILE_ALIGN: usize = 48;
+/// dY read per band of the input gradient (so that it is reused from cache by every channel chunk).
+const BAND_BYTES: usize = 2 << 20;
 /// Partial dW sums (the parallelism of the weight gradient; fixed, so dW does not depend on the threads).
 const DW_GROUPS: usize = 4;
 /// Rows (channels · taps, whole channels) of a forward cols block and of a dX task's dcols, about:
@@ -159,7 +162,7 @@ impl Geom {
     fn img(&self) -> usize {
         self.cin * self.h * self.w
     }
-    /// 1x1, stride 1, no padding: cols(x[n]) is x[n] seen as [Cin, H·W].
+    /// 1x1, stride 1, no padding: cols(`x[n]`) is `x[n]` seen as `[Cin, H·W]`.
     fn pointwise(&self) -> bool {
         self.kh == 1 && self.kw == 1 && self.stride == [1, 1] && self.pad == [0, 0]
     }
@@ -176,7 +179,7 @@ fn layout(e: ndarray::ShapeError) -> Error {
 }
 
 /// Pixels per tile: at most what fits `rows` x tile in the scratch budget, at least `min_tiles`
-/// tiles per image, never below [`MIN_TILE`] (unless the image is smaller), a multiple of [`TILE_ALIGN`].
+/// tiles per image, never below `MIN_TILE` (unless the image is smaller), a multiple of `TILE_ALIGN`.
 fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize) -> usize {
     let budget = SCRATCH_BYTES / std::mem::size_of::<F>() / rows.max(1);
     let split = pix.div_ceil(min_tiles.max(1));
@@ -224,7 +227,7 @@ fn with_buf<F: Float, R>(slot: &'static LocalKey<Slot>, len: usize, f: impl FnOn
     })
 }
 
-/// [`with_buf`] on [`SCRATCH`]. `f` must not call into rayon (a task stolen meanwhile would find the
+/// `with_buf` on `SCRATCH`. `f` must not call into rayon (a task stolen meanwhile would find the
 /// buffer taken and allocate its own).
 fn with_scratch<F: Float, R>(len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
     with_buf(&SCRATCH, len, f)
@@ -232,7 +235,7 @@ fn with_scratch<F: Float, R>(len: usize, f: impl FnOnce(&mut [F]) -> R) -> R {
 
 /// A run of consecutive output pixels of one output row, for one kernel tap (ki, kj): positions
 /// `j0..j0 + lead + valid + trail` of a cols row. `lead` and `trail` pixels read the zero padding;
-/// the `valid` ones read x[iy, ix0 + t·sw], t = 0..valid. `iy` is None when the whole run reads a
+/// the `valid` ones read `x[iy, ix0 + t·sw]`, t = 0..valid. `iy` is None when the whole run reads a
 /// padding row.
 struct Run {
     j0: usize,
@@ -268,7 +271,44 @@ fn for_each_run(g: &Geom, ki: usize, kj: usize, tile: Range<usize>, mut f: impl 
     }
 }
 
-/// cols[(c − c0)·kh·kw + ki·kw + kj, j] = x[c, oy·sh + ki − ph, ox·sw + kj − pw] (0 in the padding)
+/// For stride 1 and Wo = W (padding (kw − 1) / 2 on each side of a row), tap (ki, kj) reads x at a
+/// constant offset of the flat output index: `x_flat[p + d]`, d = (ki − ph)·W + (kj − pw). Returns
+/// d and the part of `tile` where p + d lies in the plane; outside it the tap reads padding rows.
+/// Within it, only the wrapped columns (see `wrapped_cols`) read padding.
+fn shift_span(g: &Geom, ki: usize, kj: usize, tile: &Range<usize>) -> Option<(isize, Range<usize>)> {
+    if g.stride != [1, 1] || g.wo != g.w {
+        return None;
+    }
+    let (w, plane) = (g.w as isize, (g.h * g.w) as isize);
+    // d = (ki − ph)·W + (kj − pw); p + d in [0, plane) <=> p in [−d, plane − d)
+    let d = (ki as isize - g.pad[0] as isize) * w + kj as isize - g.pad[1] as isize;
+    let (t0, t1) = (tile.start as isize, tile.end as isize);
+    let lo = (-d).clamp(t0, t1);
+    let hi = (plane - d).clamp(lo, t1);
+    Some((d, lo as usize..hi as usize))
+}
+
+/// Calls `f(j range)` on the positions j of a cols row (p = tile.start + j) whose output column ox
+/// reads across a row edge for tap column kj: ix = ox + kj − pw outside [0, W), i.e. ox below
+/// pw − kj or from W + pw − kj on (only with Wo = W).
+fn wrapped_cols(g: &Geom, kj: usize, tile: &Range<usize>, mut f: impl FnMut(Range<usize>)) {
+    let left = g.pad[1].saturating_sub(kj).min(g.w);
+    let right = (g.w + g.pad[1]).saturating_sub(kj).min(g.w);
+    if left == 0 && right == g.w {
+        return;
+    }
+    for oy in tile.start / g.w..tile.end.div_ceil(g.w) {
+        // output columns [0, left) and [right, W) of output row oy, clipped to the tile
+        for cols in [0..left, right..g.w] {
+            let (a, b) = ((oy * g.w + cols.start).max(tile.start), (oy * g.w + cols.end).min(tile.end));
+            if a < b {
+                f(a - tile.start..b - tile.start);
+            }
+        }
+    }
+}
+
+/// `cols[(c − c0)·kh·kw + ki·kw + kj, j]` = `x[c, oy·sh + ki − ph, ox·sw + kj − pw]` (0 in the padding)
 /// for the output pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), and c in `chans`.
 fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>, cols: &mut [F]) {
     let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
@@ -278,6 +318,18 @@ fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
         for ki in 0..g.kh {
             for kj in 0..g.kw {
                 let Some(dst) = rows.next() else { return };
+                if let Some((d, span)) = shift_span(g, ki, kj, &tile) {
+                    // cols[r, j] = x_flat[p + d] on the span, 0 around it and on the wrapped columns
+                    let (a, b) = (span.start - tile.start, span.end - tile.start);
+                    dst[..a].fill(F::zero());
+                    dst[b..].fill(F::zero());
+                    if a < b {
+                        let src = (span.start as isize + d) as usize;
+                        dst[a..b].copy_from_slice(&xc[src..src + (b - a)]);
+                    }
+                    wrapped_cols(g, kj, &tile, |js| dst[js].fill(F::zero()));
+                    continue;
+                }
                 for_each_run(g, ki, kj, tile.clone(), |r| {
                     let d = &mut dst[r.j0..r.j0 + r.lead + r.valid + r.trail];
                     let (lead, rest) = d.split_at_mut(r.lead);
@@ -303,15 +355,26 @@ fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
     }
 }
 
-/// The adjoint of [`im2col`]: dx[c − c0, iy, ix] += dcols[row(c, ki, kj), j] for every tap that
+/// The adjoint of `im2col`: `dx[c − c0, iy, ix]` += `dcols[row(c, ki, kj), j]` for every tap that
 /// reads x (padding taps are dropped), in a fixed order (channel, tap, pixel).
-fn col2im<F: Float>(g: &Geom, dcols: &[F], nchans: usize, tile: Range<usize>, dx: &mut [F]) {
+fn col2im<F: Float>(g: &Geom, dcols: &mut [F], nchans: usize, tile: Range<usize>, dx: &mut [F]) {
     let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
-    let mut rows = dcols.chunks_exact(len);
+    let mut rows = dcols.chunks_exact_mut(len);
     for dxc in dx.chunks_exact_mut(plane).take(nchans) {
         for ki in 0..g.kh {
             for kj in 0..g.kw {
                 let Some(src) = rows.next() else { return };
+                if let Some((d, span)) = shift_span(g, ki, kj, &tile) {
+                    // dx_flat[p + d] += dcols[r, j] on the span, the wrapped columns zeroed first
+                    wrapped_cols(g, kj, &tile, |js| src[js].fill(F::zero()));
+                    let (a, b) = (span.start - tile.start, span.end - tile.start);
+                    if a < b {
+                        let dst = (span.start as isize + d) as usize;
+                        dxc[dst..dst + (b - a)].iter_mut().zip(&src[a..b]).for_each(|(x, &v)| *x += v);
+                    }
+                    continue;
+                }
+                let src = &*src;
                 for_each_run(g, ki, kj, tile.clone(), |r| {
                     if let Some(iy) = r.iy {
                         let s = &src[r.j0 + r.lead..r.j0 + r.lead + r.valid];
@@ -329,13 +392,13 @@ fn col2im<F: Float>(g: &Geom, dcols: &[F], nchans: usize, tile: Range<usize>, dx
     }
 }
 
-/// Input channels per row block of cols: whole channels, about [`CHUNK_ROWS`] rows, evenly split.
+/// Input channels per row block of cols: whole channels, about `CHUNK_ROWS` rows, evenly split.
 fn block_chans(g: &Geom) -> usize {
     let blocks = g.cin.div_ceil((CHUNK_ROWS / (g.kh * g.kw)).max(1));
     g.cin.div_ceil(blocks)
 }
 
-/// Calls `f(rows, cols)` on consecutive row blocks of cols(x[n])[:, tile] covering the input
+/// Calls `f(rows, cols)` on consecutive row blocks of `cols(x[n])[:, tile]` covering the input
 /// channels `chans`, `cc` whole channels per block (rows c·taps..(c + 1)·taps for channel c): x itself
 /// (one block) for a pointwise conv, else im2col of one block at a time into this thread's scratch,
 /// so the GEMM packs it while it is still in cache.
@@ -359,12 +422,12 @@ fn for_each_cols_block<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, cc: us
     })
 }
 
-/// Rows of scratch per tile pixel that [`for_each_cols_block`] needs for blocks of `cc` channels.
+/// Rows of scratch per tile pixel that `for_each_cols_block` needs for blocks of `cc` channels.
 fn scratch_rows(g: &Geom, cc: usize) -> usize {
     if g.pointwise() { 0 } else { cc * g.kh * g.kw }
 }
 
-/// A contiguous standard-layout slice seen as a [rows, cols] matrix.
+/// A contiguous standard-layout slice seen as a `[rows, cols]` matrix.
 fn mat<F>(data: &[F], rows: usize, cols: usize) -> Result<ArrayView2<'_, F>> {
     ArrayView2::from_shape((rows, cols), data).map_err(layout)
 }
@@ -390,7 +453,7 @@ impl<'a, F: Float> Operands<'a, F> {
     fn x(&self) -> Result<&[F]> {
         self.x.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: input", &[]))
     }
-    /// W as the matrix [Cout, K].
+    /// W as the matrix `[Cout, K]`.
     fn wmat(&self) -> Result<ArrayView2<'_, F>> {
         let ws = self.w.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: weight", &[]))?;
         mat(ws, self.g.cout, self.g.k())
@@ -404,7 +467,7 @@ impl<'a, F: Float> Operands<'a, F> {
 /// Ho = (H + 2·ph − kh) / sh + 1 and Wo = (W + 2·pw − kw) / sw + 1.
 ///
 /// # Gradient
-/// y[n, o, i, j] = b[o] + Σ_{c, ki, kj} w[o, c, ki, kj] · x[n, c, i·sh + ki − ph, j·sw + kj − pw]; see `conv2d_bwd`.
+/// `y[n, o, i, j]` = `b[o]` + Σ_{c, ki, kj} `w[o, c, ki, kj]` · `x[n, c, i·sh + ki − ph, j·sw + kj − pw]`; see `conv2d_bwd`.
 ///
 /// Torch: `F.conv2d(x, w, b, stride=cfg.stride, padding=cfg.padding)`.
 pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg) -> Result<Array4<F>> {
@@ -442,7 +505,7 @@ pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayV
 /// x (N, Cin, H, W), w (Cout, Cin, kh, kw), g (N, Cout, Ho, Wo) -> dx like x, dw like w, db (Cout).
 ///
 /// # Gradient
-/// dX[n] = col2im(Wᵀ · dY[n]); dW = Σ_n dY[n] · cols(x[n])ᵀ; db[o] = Σ_{n,i,j} dY[n, o, i, j].
+/// `dX[n]` = col2im(Wᵀ · `dY[n]`); dW = Σ_n `dY[n]` · cols(`x[n]`)ᵀ; `db[o]` = Σ_{n,i,j} `dY[n, o, i, j]`.
 ///
 /// Torch: `torch.autograd.grad(F.conv2d(x, w, b, stride, padding), (x, w, b), g)`.
 pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg,
@@ -463,49 +526,62 @@ pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>
     Ok(Conv2dGrads { x: dx, w: dw, b: db })
 }
 
-/// dX, by tasks (image, input-channel chunk) that each own dX[n, chunk].
+/// dX, by tasks (image, input-channel chunk) that each own `dX[n, chunk]`. The tiles are taken in
+/// bands of about `BAND_BYTES` of dY, all tasks finishing one band before the next starts, so a
+/// band of dY is read from memory once and then from cache by every chunk.
 fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
     let taps = g.kh * g.kw;
     let (plane, out_len) = (g.h * g.w, g.cout * g.pix());
-    // Fewest chunks the row cap allows; more when the threads need more tasks.
+    // Fewest chunks the row cap allows; more when the threads need more tasks (a multiple of them).
+    let threads = rayon::current_num_threads();
     let min_chunks = g.k().div_ceil(CHUNK_ROWS).min(g.cin);
-    let chunks = min_chunks.max((4 * rayon::current_num_threads()).div_ceil(g.n)).min(g.cin);
+    let chunks = (2 * threads).div_ceil(g.n).max(min_chunks).next_multiple_of(threads).min(g.cin);
     let cc = g.cin.div_ceil(chunks);
     // The tile depends on the shapes only (the widest chunk), so the sums do not depend on the threads.
     let tile = tile_len::<F>(g.pix(), g.cin.div_ceil(min_chunks) * taps, 1);
+    let band = tile * (BAND_BYTES / (g.cout * tile * std::mem::size_of::<F>()).max(1)).max(1);
     let mut dx = Array3::<F>::zeros((g.n, g.cin, plane));
-    dx.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut dxn)| {
-        let dyn_ = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?;
-        dxn.axis_chunks_iter_mut(Axis(0), cc).into_par_iter().enumerate().try_for_each(|(ci, mut dxc)| {
-            let chans = ci * cc..ci * cc + dxc.nrows();
-            let rows = chans.len() * taps;
-            // W[:, chunk]ᵀ: [rows, Cout]
-            let wt = wm.slice(s![.., chans.start * taps..chans.end * taps]).reversed_axes();
-            for px in tiles(g.pix(), tile) {
-                let dyt = dyn_.slice(s![.., px.clone()]);
-                if g.pointwise() {
-                    // dX[n, chunk, tile] = W[:, chunk]ᵀ · dY[n][:, tile]
-                    gemm(F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]));
-                    continue;
+    if let (false, Some(d)) = (g.pointwise(), dx.as_slice_mut()) {
+        // Claim the pages with writes: col2im's first access is a read-modify-write, and writing a
+        // page first read as the shared zero page costs a copy-on-write fault and a TLB flush on
+        // every CPU (a third of the time of a large dX on 2 cores).
+        d.par_chunks_mut(1 << 16).for_each(|c| c.fill(F::zero()));
+    }
+    for b0 in (0..g.pix()).step_by(band) {
+        let band = b0..(b0 + band).min(g.pix());
+        dx.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut dxn)| {
+            let dyn_ = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?;
+            dxn.axis_chunks_iter_mut(Axis(0), cc).into_par_iter().enumerate().try_for_each(|(ci, mut dxc)| {
+                let chans = ci * cc..ci * cc + dxc.nrows();
+                let rows = chans.len() * taps;
+                // W[:, chunk]ᵀ: [rows, Cout]
+                let wt = wm.slice(s![.., chans.start * taps..chans.end * taps]).reversed_axes();
+                for px in tiles(band.len(), tile).map(|t| band.start + t.start..band.start + t.end) {
+                    let dyt = dyn_.slice(s![.., px.clone()]);
+                    if g.pointwise() {
+                        // dX[n, chunk, tile] = W[:, chunk]ᵀ · dY[n][:, tile]
+                        gemm(F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]));
+                        continue;
+                    }
+                    let dxs = dxc.as_slice_mut().ok_or_else(|| Error::shape(OP, "internal layout error: dx", &[]))?;
+                    with_scratch(rows * px.len(), |buf: &mut [F]| {
+                        let dcols = ArrayViewMut2::from_shape((rows, px.len()), &mut *buf).map_err(layout)?;
+                        // dcols = W[:, chunk]ᵀ · dY[n][:, tile]
+                        gemm(F::one(), wt, dyt, F::zero(), dcols);
+                        col2im(g, &mut buf[..rows * px.len()], chans.len(), px.clone(), dxs);
+                        Ok::<_, Error>(())
+                    })?;
                 }
-                let dxs = dxc.as_slice_mut().ok_or_else(|| Error::shape(OP, "internal layout error: dx", &[]))?;
-                with_scratch(rows * px.len(), |buf: &mut [F]| {
-                    let dcols = ArrayViewMut2::from_shape((rows, px.len()), &mut *buf).map_err(layout)?;
-                    // dcols = W[:, chunk]ᵀ · dY[n][:, tile]
-                    gemm(F::one(), wt, dyt, F::zero(), dcols);
-                    col2im(g, buf, chans.len(), px.clone(), dxs);
-                    Ok::<_, Error>(())
-                })?;
-            }
-            Ok(())
-        })
-    })?;
+                Ok::<_, Error>(())
+            })
+        })?;
+    }
     dx.into_shape_with_order((g.n, g.cin, g.h, g.w)).map_err(layout)
 }
 
-/// dW, as [`DW_GROUPS`] partial sums over contiguous runs of (image, tile), fixed by the shapes and
+/// dW, as `DW_GROUPS` partial sums over contiguous runs of (image, tile), fixed by the shapes and
 /// added in group order. Each tile builds cols for all of K, so one GEMM packs dY once per tile.
-/// Group 0 sums straight into dW, the others into this thread's reused [`PARTIALS`] buffer; the
+/// Group 0 sums straight into dW, the others into this thread's reused `PARTIALS` buffer; the
 /// first tile of a group overwrites (beta 0), so no buffer needs clearing.
 fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
     let (out_len, wlen) = (g.cout * g.pix(), g.cout * g.k());
@@ -540,7 +616,7 @@ fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
     dw.into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout)
 }
 
-/// db[o] = Σ_n Σ_p dY[n, o, p], in order.
+/// `db[o]` = Σ_n Σ_p `dY[n, o, p]`, in order.
 fn bias_grad<F: Float>(g: &Geom, dy: &[F]) -> Array1<F> {
     let pix = g.pix();
     let sums: Vec<F> = (0..g.cout)
