@@ -65,6 +65,7 @@ def test_eval_disparity_matches_reference_float32(h, w):
     got = ours(left.astype(np.float32), right.astype(np.float32), iters=(6, 6), disp_init=d0)
     assert got.shape == (1, h, w) and got.dtype == np.float32
     err = np.abs(got[0] - expected).max()
+    print(f"\n[parity] eval float32 {h}x{w}: max |disparity error| = {err:.2e} px")
     assert err <= 1e-3, f"max abs disparity error {err:.2e} px"
 
 
@@ -103,10 +104,14 @@ def _zero_grad_bias(name):
 def test_training_step_matches_reference_float64():
     ref, ours, t_preds, m_preds, t_loss, m_loss = _train_step_both(np.float64, freeze_bn=False)
     assert len(m_preds) == len(t_preds) == 24
+    worst_pred = max(np.abs(a.numpy() - b.detach().numpy()).max() for a, b in zip(m_preds, t_preds))
+    print(f"\n[parity] train float64: max |prediction error| over 24 predictions = {worst_pred:.2e} px, "
+          f"loss {m_loss.item():.12f} vs {t_loss.item():.12f}")
     for i, (a, b) in enumerate(zip(m_preds, t_preds)):
         np.testing.assert_allclose(a.numpy(), b.detach().numpy(), rtol=1e-9, atol=1e-8, err_msg=f"prediction {i}")
     assert m_loss.item() == pytest.approx(t_loss.item(), rel=1e-10)
     t_grads = {k: p.grad for k, p in ref.named_parameters()}
+    rel = {}
     for name, p in ours.named_parameters():
         tg = t_grads[name]
         theirs = np.zeros(p.shape) if tg is None else tg.numpy()
@@ -115,7 +120,11 @@ def test_training_step_matches_reference_float64():
         if _zero_grad_bias(name):
             assert diff <= 1e-8, f"{name}: |diff| {diff:.2e} (gradient zero in exact arithmetic)"
         else:
-            assert diff <= 1e-6 * np.linalg.norm(theirs) + 1e-12, f"{name}: relative error {diff / np.linalg.norm(theirs):.2e}"
+            rel[name] = diff / np.linalg.norm(theirs)
+            assert diff <= 1e-6 * np.linalg.norm(theirs) + 1e-12, f"{name}: relative error {rel[name]:.2e}"
+    worst = max(rel, key=rel.get)
+    print(f"[parity] train float64: {len(rel)} parameter gradients, max relative error {rel[worst]:.2e} ({worst}), "
+          f"median {np.median(list(rel.values())):.2e}")
     t_buffers = dict(ref.named_buffers())
     for name, b in ours.named_buffers():
         np.testing.assert_allclose(np.asarray(b), t_buffers[name].numpy(), rtol=1e-9, atol=1e-10, err_msg=name)
@@ -125,9 +134,14 @@ def test_training_step_frozen_bn_update_block_grads_match_reference_float32():
     ref, ours, _, m_preds, t_loss, m_loss = _train_step_both(np.float32, freeze_bn=True)
     assert m_loss.item() == pytest.approx(t_loss.item(), rel=1e-4)
     t_grads = dict(ref.named_parameters())
+    rel = {}
     for name, p in ours.named_parameters():
         if not name.startswith("update_"):
             continue
         theirs = t_grads[name].grad.numpy()
         diff = np.linalg.norm(p.grad.numpy() - theirs)
-        assert diff <= 1e-3 * np.linalg.norm(theirs) + 1e-6, f"{name}: relative error {diff / (np.linalg.norm(theirs) + 1e-30):.2e}"
+        rel[name] = diff / (np.linalg.norm(theirs) + 1e-30)
+        assert diff <= 1e-3 * np.linalg.norm(theirs) + 1e-6, f"{name}: relative error {rel[name]:.2e}"
+    worst = max(rel, key=rel.get)
+    print(f"\n[parity] train float32 frozen BN: {len(rel)} update-block gradients, max relative error "
+          f"{rel[worst]:.2e} ({worst}), loss {m_loss.item():.6f} vs {t_loss.item():.6f}")

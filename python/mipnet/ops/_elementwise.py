@@ -17,15 +17,20 @@ __all__ = ["add", "sub", "mul", "mean", "sum", "to_dtype"]
 class _Binary(Function):
     @staticmethod
     def forward(ctx, a, b, op):
-        ctx.save_for_backward(a, b)
         ctx.op = op
+        # only mul reads the operands in backward; add/sub keep nothing alive (the tape's memory)
+        if op == "mul":
+            ctx.save_for_backward(a, b)
         return _core.binary_fwd(a, b, op)
 
     @staticmethod
     def backward(ctx, g):
-        a, b = ctx.saved_tensors
-        ga, gb = _core.binary_bwd(a, b, g, ctx.op)
-        return ga, gb, None
+        if ctx.op == "mul":
+            a, b = ctx.saved_tensors
+            ga, gb = _core.binary_bwd(a, b, g, "mul")
+            return ga, gb, None
+        # d(a ± b) = (g, ±g); the engine sums each back to its input's shape
+        return g, (g if ctx.op == "add" else _core.affine_fwd(g, -1.0, 0.0)), None
 
 
 #: One Function class per binary op, so errors name the op.
