@@ -71,10 +71,15 @@ class Context:
 
 
 class _Node:
-    __slots__ = ("fn", "ctx", "inputs")
+    """One recorded op. ``inputs`` has one edge per positional argument: the producing ``_Node`` of a
+    non-leaf tensor, the tensor itself for a leaf that requires grad, or None. Edges never hold a
+    non-leaf tensor, so an activation that no backward saved is freed as soon as Python drops it
+    (as torch's graph does); ``shape`` and ``dtype`` are all the engine needs of the output."""
 
-    def __init__(self, fn: type, ctx: Context, inputs: tuple):
-        self.fn, self.ctx, self.inputs = fn, ctx, inputs
+    __slots__ = ("fn", "ctx", "inputs", "shape", "dtype")
+
+    def __init__(self, fn: type, ctx: Context, inputs: tuple, shape: tuple, dtype: np.dtype):
+        self.fn, self.ctx, self.inputs, self.shape, self.dtype = fn, ctx, inputs, shape, dtype
 
 
 class Function:
@@ -109,7 +114,9 @@ class Function:
         out = cls.forward(ctx, *(a.data if isinstance(a, Tensor) else a for a in args), **kwargs)
         result = Tensor._wrap(out, requires_grad=track)
         if track:
-            result._node = _Node(cls, ctx, tuple(a if isinstance(a, Tensor) else None for a in args))
+            edges = tuple((a if a._node is None else a._node) if isinstance(a, Tensor) and a.requires_grad else None
+                          for a in args)
+            result._node = _Node(cls, ctx, edges, out.shape, out.dtype)
         return result
 
 
@@ -120,44 +127,54 @@ def unbroadcast(grad: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return _core.sum_to_shape(grad, list(shape))
 
 
-def _topological_order(root) -> list:
-    """Tensors reachable from ``root`` through recorded ops, each after all tensors it depends on."""
+def _topological_order(root: _Node) -> list:
+    """Nodes and leaf tensors reachable from ``root``, each after everything it depends on."""
     order, visited, stack = [], set(), [(root, False)]
     while stack:
-        t, expanded = stack.pop()
+        item, expanded = stack.pop()
         if expanded:
-            order.append(t)
+            order.append(item)
             continue
-        if id(t) in visited:
+        if id(item) in visited:
             continue
-        visited.add(id(t))
-        stack.append((t, True))
-        if t._node is not None:
-            stack.extend((p, False) for p in t._node.inputs if p is not None and p.requires_grad and id(p) not in visited)
+        visited.add(id(item))
+        stack.append((item, True))
+        if isinstance(item, _Node):
+            stack.extend((p, False) for p in item.inputs if p is not None and id(p) not in visited)
     return order
 
 
 def backward(root, grad: np.ndarray) -> None:
-    """Accumulates d(root)/d(leaf) · grad into ``.grad`` of every leaf that requires grad, then frees
-    the graph (as torch does without ``retain_graph``)."""
+    """Accumulates d(root)/d(leaf) · grad into ``.grad`` of every leaf that requires grad, freeing
+    each node's saved arrays once it has run (as torch does without ``retain_graph``)."""
     from .tensor import Tensor
 
-    grads = {id(root): grad}
-    for t in reversed(_topological_order(root)):
-        g = grads.pop(id(t), None)
+    if root._node is None:
+        _accumulate(root, grad)
+        return
+    if root._node.fn is None:
+        raise RuntimeError("backward: trying to backward through the graph a second time")
+    grads = {id(root._node): grad}
+    for item in reversed(_topological_order(root._node)):
+        g = grads.pop(id(item), None)
         if g is None:
             continue
-        node = t._node
-        if node is None:
-            t.grad = Tensor._wrap(g.copy()) if t.grad is None else Tensor._wrap(t.grad.data + g)
+        if isinstance(item, Tensor):
+            _accumulate(item, g)
             continue
-        in_grads = node.fn.backward(node.ctx, g)
+        in_grads = item.fn.backward(item.ctx, g)
         if not isinstance(in_grads, tuple):
             in_grads = (in_grads,)
-        for inp, ig in zip(node.inputs, in_grads):
-            if inp is None or ig is None or not inp.requires_grad:
+        for edge, ig in zip(item.inputs, in_grads):
+            if edge is None or ig is None:
                 continue
-            ig = unbroadcast(np.asarray(ig, dtype=inp.data.dtype), inp.shape)
-            prev = grads.get(id(inp))
-            grads[id(inp)] = ig if prev is None else prev + ig
-        t._node = None
+            ig = unbroadcast(np.asarray(ig, dtype=edge.dtype), edge.shape)
+            prev = grads.get(id(edge))
+            grads[id(edge)] = ig if prev is None else prev + ig
+        item.fn, item.ctx, item.inputs = None, None, ()
+
+
+def _accumulate(leaf, g: np.ndarray) -> None:
+    from .tensor import Tensor
+
+    leaf.grad = Tensor._wrap(g.copy()) if leaf.grad is None else Tensor._wrap(leaf.grad.data + g)
