@@ -1,4 +1,4 @@
-"""The ``mipnet`` command line: ``info``, ``infer``, ``eval``. Also ``python -m mipnet``."""
+"""The ``mipnet`` command line: ``info``, ``infer``, ``eval``, ``train``. Also ``python -m mipnet``."""
 
 from __future__ import annotations
 
@@ -211,6 +211,10 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--aggregation", default="mean", choices=("mean", "pooled"),
                     help="mean of per-image metrics (ETH3D) or pooled over all pixels (KITTI)")
     ev.set_defaults(func=cmd_eval)
+
+    from .training.cli import add_parser
+
+    add_parser(sub)
     return p
 
 

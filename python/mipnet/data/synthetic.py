@@ -197,8 +197,32 @@ def make_pair(height: int, width: int, seed: int = 0) -> dict:
     }
 
 
-def _item_seed(seed: int, index: int, stream: int = 0) -> int:
-    return int(np.random.SeedSequence([seed, index, stream]).generate_state(1)[0])
+def water_for_item(underwater, seed: int) -> tuple[dict | None, str | None]:
+    """``degrade`` keyword arguments and a label for one pair: None (in air), a preset name, a
+    ``WaterParams``, a dict of ``degrade`` arguments, or ``"random"`` (water drawn around the
+    presets by :func:`mipnet.underwater.random_water` from a generator seeded by the pair seed)."""
+    if underwater is None:
+        return None, None
+    if isinstance(underwater, str) and underwater == "random":
+        from ..underwater import random_water
+
+        return {"preset": random_water(np.random.default_rng([seed, 2]))}, "random"
+    if isinstance(underwater, dict):
+        options = dict(underwater)
+        preset = options.get("preset", "coastal")
+        return options, preset if isinstance(preset, str) else "custom"
+    return {"preset": underwater}, underwater if isinstance(underwater, str) else "custom"
+
+
+def apply_water(pair: dict, underwater, seed: int) -> str | None:
+    """Degrades ``pair``'s images in place as :func:`water_for_item` says; returns the label."""
+    from ..underwater import degrade
+
+    options, label = water_for_item(underwater, seed)
+    if options is not None:
+        pair["left"], pair["right"] = degrade(pair["left"], pair["right"], pair["disparity"],
+                                              seed=int(np.random.SeedSequence([seed, 1]).generate_state(1)[0]), **options)
+    return label
 
 
 class SyntheticStereo(Dataset):
@@ -211,10 +235,12 @@ class SyntheticStereo(Dataset):
     height, width : int
         Image size.
     seed : int
-        Base seed; pair i uses a seed derived from (seed, i).
+        Pair i is ``make_pair(height, width, seed + i)``. Training sets use seeds below 1,000,000,
+        evaluation sets (``mipnet eval --seed 1000000``) start there.
     underwater : str, WaterParams or dict, optional
-        A preset name of :func:`mipnet.underwater.degrade`, a ``WaterParams``, or a dict of
-        ``degrade`` keyword arguments (``preset`` plus overrides). None: in-air pairs.
+        A preset name of :func:`mipnet.underwater.degrade`, ``"random"`` (water drawn around the
+        presets per pair), a ``WaterParams``, or a dict of ``degrade`` keyword arguments
+        (``preset`` plus overrides). None: in-air pairs.
 
     Shapes
     ------
@@ -233,19 +259,11 @@ class SyntheticStereo(Dataset):
         return self.n
 
     def __getitem__(self, index: int) -> dict:
-        from ..underwater import degrade
-
         index = self._check_index(index)
-        pair = make_pair(self.height, self.width, _item_seed(self.seed, index))
-        preset = None
-        if self.underwater is not None:
-            options = dict(self.underwater) if isinstance(self.underwater, dict) else {"preset": self.underwater}
-            preset = options.get("preset", "coastal")
-            pair["left"], pair["right"] = degrade(
-                pair["left"], pair["right"], pair["disparity"], seed=_item_seed(self.seed, index, 1), **options
-            )
-        pair["meta"] = {"dataset": self.name, "index": index, "seed": _item_seed(self.seed, index),
-                        "underwater": preset if isinstance(preset, (str, type(None))) else "custom"}
+        seed = self.seed + index
+        pair = make_pair(self.height, self.width, seed)
+        label = apply_water(pair, self.underwater, seed)
+        pair["meta"] = {"dataset": self.name, "index": index, "seed": seed, "underwater": label}
         return pair
 
 
