@@ -107,8 +107,8 @@ def _resize_taps(size_in: int, scale: float, start: int, count: int) -> tuple[np
     # i0 = floor(src), kept inside the image; past the last centre the last pixel repeats (w = 0)
     i0 = np.minimum(np.floor(src).astype(np.intp), size_in - 1)
     w = np.where(i0 < size_in - 1, src - i0, 0.0).astype(np.float32)
-    # right neighbour, clamped at the border where w = 0 anyway
-    i1 = np.minimum(i0 + 1, size_in - 1)
+    # right neighbour where it has weight, else i0 itself, so the taps read only contributing pixels
+    i1 = np.where(w > 0, i0 + 1, i0)
     return i0, i1, w
 
 
@@ -137,8 +137,8 @@ def _blend_axis(array: np.ndarray, taps: tuple[np.ndarray, np.ndarray, np.ndarra
 
 
 def _span(taps: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[int, int]:
-    """Source index range [first i0, last i1 + 1) read by monotonic taps."""
-    return int(taps[0][0]), int(taps[1][-1]) + 1
+    """Source index range [first i0, max i1 + 1) read by monotonic taps."""
+    return int(taps[0][0]), int(taps[1].max()) + 1
 
 
 def _shift_taps(taps: tuple[np.ndarray, np.ndarray, np.ndarray], offset: int):
