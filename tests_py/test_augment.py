@@ -69,6 +69,12 @@ def _erode(mask, radius=2):
     return out
 
 
+def _window(origin, crop, delta=0):
+    """Index of the crop at ``origin`` = (y0, x0), its rows shifted by ``delta``."""
+    (y0, x0), (ch, cw) = origin, crop
+    return np.s_[y0 + delta:y0 + delta + ch, x0:x0 + cw]
+
+
 def _check_contract(out, crop):
     ch, cw = crop
     assert out["left"].shape == out["right"].shape == (ch, cw, 3)
@@ -130,7 +136,7 @@ def test_crop_only_is_a_plain_crop(pair):
     for seed in range(5):
         params = aug.draw((120, 180), _rng(seed))
         out = aug.apply(pair, params)
-        (y0, x0), crop = params.origin, np.s_[params.origin[0]:params.origin[0] + 64, params.origin[1]:params.origin[1] + 96]
+        (y0, x0), crop = params.origin, _window(params.origin, (64, 96))
         assert params.scale == (1.0, 1.0) and params.delta == 0 and params.color == () and params.erase == ()
         assert 0 <= y0 <= 120 - 64 and 0 <= x0 <= 180 - 96
         for key in ("left", "right", "disparity", "valid"):
@@ -194,7 +200,7 @@ def test_colour_and_occluders_on_the_window_equal_the_whole_image(pair):
     window, whole = StereoAugmentor((56, 80), **opts), StereoAugmentor((120, 180), **opts)
     for seed in range(12):
         params = window.draw((120, 180), _rng(seed))
-        (y0, x0), crop = params.origin, np.s_[params.origin[0]:params.origin[0] + 56, params.origin[1]:params.origin[1] + 80]
+        crop = _window(params.origin, (56, 80))
         full = whole.apply(pair, dataclasses.replace(params, origin=(0, 0)))
         out = window.apply(pair, params)
         np.testing.assert_array_equal(out["left"], full["left"][crop])
@@ -251,7 +257,7 @@ def test_eraser_then_patch_on_a_window_matches_a_whole_image_reference(pair):
     aug = StereoAugmentor((64, 100), **{**OFF, "eraser_prob": 1.0, "patch_prob": 1.0})
     for seed in range(20):
         params = aug.draw((120, 180), _rng(seed))
-        (y0, x0), crop = params.origin, np.s_[params.origin[0]:params.origin[0] + 64, params.origin[1]:params.origin[1] + 100]
+        crop = _window(params.origin, (64, 100))
         reference = pair["right"].copy()
         fill = np.rint(reference[crop].reshape(-1, 3).mean(axis=0)).astype(np.uint8)
         for y, x, h, w in params.erase:
@@ -274,16 +280,17 @@ def test_bilinear_resize_matches_cv2_inter_linear(pair):
     scales = []
     for seed in range(25):
         params = aug.draw((120, 180), _rng(seed))
-        (s_y, s_x), (y0, x0), dy = params.scale, params.origin, params.delta
+        (s_y, s_x), dy = params.scale, params.delta
         out = aug.apply(sample, params)
         resized = {k: cv2.resize(sample[k], None, fx=s_x, fy=s_y, interpolation=cv2.INTER_LINEAR)
                    for k in ("left", "right", "disparity")}
         assert resized["left"].shape[:2] == params.size
-        crop, crop_right = np.s_[y0:y0 + 56, x0:x0 + 88], np.s_[y0 + dy:y0 + dy + 56, x0:x0 + 88]
+        crop, crop_right = _window(params.origin, (56, 88)), _window(params.origin, (56, 88), dy)
         # cv2 computes uint8 in 11-bit fixed point: at most one level apart
         assert np.abs(out["left"].astype(int) - resized["left"][crop]).max() <= 1
         assert np.abs(out["right"].astype(int) - resized["right"][crop_right]).max() <= 1
-        np.testing.assert_allclose(out["disparity"], resized["disparity"][crop] * np.float32(s_x), rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(out["disparity"], resized["disparity"][crop] * np.float32(s_x),
+                                   rtol=1e-5, atol=1e-4)
         scales += [s_y, s_x]
     assert min(scales) < 0.8 and max(scales) > 1.3
 
@@ -357,9 +364,9 @@ def test_valid_mask_never_grows_into_invalid_sources():
     nearest_grows = 0
     for seed in range(10):
         params = aug.draw((90, 130), _rng(seed))
-        (s_y, s_x), (y0, x0) = params.scale, params.origin
+        s_y, s_x = params.scale
         out = aug.apply(sample, params)
-        crop = np.s_[y0:y0 + 56, x0:x0 + 80]
+        crop = _window(params.origin, (56, 80))
         blended = cv2.resize(valid.astype(np.float32), None, fx=s_x, fy=s_y, interpolation=cv2.INTER_LINEAR)[crop]
         np.testing.assert_array_equal(out["valid"], blended > 1 - 1e-6)
         nearest = cv2.resize(valid.astype(np.uint8), None, fx=s_x, fy=s_y, interpolation=cv2.INTER_NEAREST)[crop] > 0

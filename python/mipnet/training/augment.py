@@ -113,7 +113,12 @@ def _resize_taps(size_in: int, scale: float, start: int, count: int) -> tuple[np
 
 
 def _blend_axis(array: np.ndarray, taps: tuple[np.ndarray, np.ndarray, np.ndarray], axis: int) -> np.ndarray:
-    """One separable pass of :func:`_resample` along ``axis`` (float blend, or AND for bool)."""
+    """One separable pass of :func:`_resample` along ``axis`` (float32 blend, or AND for bool).
+
+    Shapes
+    ------
+    array: (..., n_in along axis, ...) -> (..., len(taps[0]), ...).
+    """
     i0, i1, w = taps
     if not w.any() and i0[-1] - i0[0] == len(i0) - 1 and np.all(np.diff(i0) == 1):
         # identity taps (scale 1): the output is a slice of the input
@@ -179,10 +184,19 @@ def _jitter_range(value, name: str, owner: str, centre: float = 1.0, bound: tupl
             raise ArgumentError(f"{owner}: {name} must be >= 0, got {value}")
         low, high = max(bound[0], centre - value), centre + value
     else:
-        low, high = (float(v) for v in value)
+        low, high = _float_pair(value, name, owner)
     if not bound[0] <= low <= high <= bound[1]:
-        raise ArgumentError(f"{owner}: {name} range must satisfy {bound[0]} <= low <= high <= {bound[1]}, got ({low}, {high})")
+        raise ArgumentError(f"{owner}: {name} range must satisfy {bound[0]} <= low <= high <= {bound[1]}, "
+                            f"got ({low}, {high})")
     return float(low), float(high)
+
+
+def _float_pair(value, name: str, owner: str) -> tuple[float, float]:
+    try:
+        low, high = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ArgumentError(f"{owner}: {name} must be a number or a pair of numbers, got {value!r}") from None
+    return low, high
 
 
 def _check_pair(value, name: str, owner: str, positive: bool = False) -> tuple[int, int]:
@@ -287,10 +301,12 @@ class StereoAugmentor:
         Gamma and gain of ``adjust_gamma``, drawn uniformly; default (1, 1) each, the identity.
     asymmetric_prob : float
         Probability of independent draws for the two views (default 0.2); otherwise one draw is
-        applied to the vertically stacked pair, so both views share even the contrast mean.
+        applied to the vertically stacked pair, so both views share even the contrast pivot
+        (the mean grey of the source regions the two crops read).
     eraser_prob : float
         Probability (default 0.5) of 1 or 2 (equally likely) rectangles on the right image with
-        sides U{eraser_size}, filled with the right image's mean colour (after step 1).
+        sides U{eraser_size}, top-left corner anywhere in the image (clipped at its border),
+        filled with the mean colour, after step 1, of the right-image region the crop reads.
     eraser_size : (int, int)
         Side range in px, inclusive, default (50, 99) (RAFT's ``randint(50, 100)``); scaled by
         min(1, min(H, W) / :data:`OCCLUDER_REFERENCE_SIDE`) for small images (at least 1 px).
@@ -364,7 +380,7 @@ class StereoAugmentor:
         self.patch_prob = _check_prob(patch_prob, "patch_prob", owner)
         self.spatial = bool(spatial)
         self.spatial_prob = _check_prob(spatial_prob, "spatial_prob", owner)
-        low, high = (float(v) for v in scale_range)
+        low, high = _float_pair(scale_range, "scale_range", owner)
         if not low <= high:
             raise ArgumentError(f"{owner}: scale_range must be (low, high) with low <= high, got {scale_range}")
         self.scale_range = (low, high)
@@ -410,7 +426,8 @@ class StereoAugmentor:
             raise DTypeError(f"{owner}: images must be uint8, got left {left.dtype} right {right.dtype} "
                              f"with shape {list(left.shape)}")
         if not np.issubdtype(disparity.dtype, np.floating):
-            raise DTypeError(f"{owner}: disparity must be float, got {disparity.dtype} with shape {list(disparity.shape)}")
+            raise DTypeError(f"{owner}: disparity must be float, got {disparity.dtype} "
+                             f"with shape {list(disparity.shape)}")
         if left.shape[0] < 1 or left.shape[1] < 1:
             raise ShapeError(f"{owner}: images must be at least 1x1, got {list(left.shape)}")
 
