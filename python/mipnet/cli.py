@@ -119,7 +119,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-DATASETS = ("synthetic", "synthetic-underwater", "sceneflow", "middlebury2014", "middeval3", "eth3d",
+DATASETS = ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater", "sceneflow", "middlebury2014", "middeval3", "eth3d",
             "kitti2012", "kitti2015", "crestereo")
 
 
@@ -127,12 +127,13 @@ def open_dataset(args: argparse.Namespace):
     """The evaluation pairs named by ``--dataset`` (``--root`` for the on-disk sets)."""
     from . import data
 
-    if args.dataset in ("synthetic", "synthetic-underwater"):
+    if args.dataset in ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater"):
         h, w = args.size
-        preset = args.preset if args.dataset == "synthetic-underwater" else None
-        if args.dataset == "synthetic-underwater" and preset is None:
-            raise SystemExit("mipnet eval: --dataset synthetic-underwater needs --preset (clear, coastal, turbid, low_light)")
-        return data.SyntheticStereo(args.n, h, w, seed=args.seed, underwater=preset)
+        underwater = args.dataset.endswith("-underwater")
+        if underwater and args.preset is None:
+            raise SystemExit(f"mipnet eval: --dataset {args.dataset} needs --preset (clear, coastal, turbid, low_light, random)")
+        generator = data.SceneStereo if args.dataset.startswith("scenes") else data.SyntheticStereo
+        return generator(args.n, h, w, seed=args.seed, underwater=args.preset if underwater else None)
     if not args.root:
         raise SystemExit(f"mipnet eval: --dataset {args.dataset} needs --root DIR")
     make = {
@@ -169,7 +170,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if "sgbm" in methods:
         full, covered = sgbm_rows(pairs(), aggregation=args.aggregation)
         rows += [{**full, "method": "SGBM (full coverage)"}, {**covered, "method": "SGBM (covered)"}]
-    name = args.dataset + (f" ({args.preset})" if args.dataset == "synthetic-underwater" else "")
+    name = args.dataset + (f" ({args.preset})" if args.dataset.endswith("-underwater") else "")
     print(f"{name}: {count} pairs, {args.aggregation} over images; bad-x and d1 in percent, epe/a90/rms in px")
     print(format_table(rows))
     return 0
@@ -202,10 +203,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--weights", help="weights file (.safetensors written by MIPNet.save)")
     ev.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
     ev.add_argument("--methods", default="mipnet,sgbm", help="comma-separated: mipnet, sgbm")
-    ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light"), help="underwater preset")
+    ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light", "random"),
+                    help="underwater preset (random: water drawn around the presets per pair)")
     ev.add_argument("--n", type=int, default=50, help="number of generated pairs (synthetic sets)")
     ev.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"), help="generated pair size")
-    ev.add_argument("--seed", type=int, default=0, help="seed of the generated pairs")
+    ev.add_argument("--seed", type=int, default=1_000_000,
+                    help="pair seed of the first generated pair (default 1000000: held out from training)")
     ev.add_argument("--resolution", default="H", choices=("F", "H", "Q"), help="MiddEval3 resolution")
     ev.add_argument("--max-pairs", type=int, default=None, help="evaluate only the first N pairs")
     ev.add_argument("--aggregation", default="mean", choices=("mean", "pooled"),
