@@ -1,4 +1,4 @@
-"""Stereo datasets, a seeded DataLoader and procedural pairs."""
+"""Stereo datasets, a seeded DataLoader and procedural pairs (simple planar ones and natural-statistics scenes)."""
 
 from .datasets import (
     ETH3D,
@@ -14,6 +14,7 @@ from .datasets import (
     StereoDataset,
 )
 from .loader import DataLoader, default_collate
+from .scenes import GENERATOR_VERSION, SceneStereo, make_scene
 from .synthetic import SyntheticStereo, make_pair, synthetic_underwater_pairs
 
 __all__ = [
@@ -33,4 +34,7 @@ __all__ = [
     "SyntheticStereo",
     "make_pair",
     "synthetic_underwater_pairs",
+    "SceneStereo",
+    "make_scene",
+    "GENERATOR_VERSION",
 ]
