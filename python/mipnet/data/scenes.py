@@ -88,6 +88,8 @@ class _Disparity:
         # x - d(x, y) = x_right  <=>  qxx u^2 - slope u + rest = 0 with these two terms:
         slope = 1.0 - self.a - self.qxy * v
         rest = x_right - self.x0 + self.c + v * (self.b + self.qyy * v)
+        if self.qxx == 0.0:
+            return self.x0 + rest / slope  # linear in u: slope u = rest
         discriminant = slope * slope - 4.0 * self.qxx * rest
         # The root where d(x - d)/dx = sqrt(discriminant) > 0, written 2 rest / (slope + sqrt(disc))
         # (no cancellation, and it is rest / slope when qxx = 0).
@@ -329,7 +331,9 @@ class _Painter:
         kind = kinds[int(np.searchsorted(np.cumsum(list(_PROCEDURAL_SHARE.values())), kind_draw, side="right"))]
         return textures.procedural(kind, int(index_draw * textures.TILES_PER_KIND))
 
-    def __call__(self, origin, extent, curved: bool, contrast_scale: float = 1.0) -> _Paint:
+    def __call__(self, origin, extent, curved: bool, hard: float = 1.0) -> _Paint:
+        """Paint of a surface centred at ``origin`` with half sizes ``extent``; ``hard`` scales the
+        shares of textureless (7%) and low-contrast (15%) paints."""
         rng = self.rng
         texture = self._texture()
         photo = not texture.periodic
@@ -342,9 +346,9 @@ class _Painter:
         frame = np.array([[cos, sin], [-sin, cos]]) * (scale * np.array([[stretch**0.5], [stretch**-0.5]]))
         offset = rng.uniform(0.0, 1.0, 2) * np.array(texture.size[::-1])
         contrast_class, contrast_draw = rng.random(2)
-        if contrast_class < 0.07:
+        if contrast_class < 0.07 * hard:
             contrast = 0.02 * contrast_draw  # textureless
-        elif contrast_class < 0.22:
+        elif contrast_class < 0.22 * hard:
             contrast = 0.04 + 0.16 * contrast_draw  # low contrast
         else:
             contrast = 0.6 + 0.7 * contrast_draw
@@ -363,7 +367,7 @@ class _Painter:
         shading = (rng.normal(0.0, 0.15), rng.normal(0.0, 0.15), rng.uniform(0.1, 0.5) if curved else 0.0)
         return _Paint(
             texture=texture, origin=(float(origin[0]), float(origin[1])), frame=frame, offset=offset,
-            texels_per_pixel=scale, colour=_colour_matrix(contrast * contrast_scale, saturation, hue_turn),
+            texels_per_pixel=scale, colour=_colour_matrix(contrast, saturation, hue_turn),
             base=np.clip(base, 0.02, 0.98).astype(np.float32), shading=shading,
             extent=(max(float(extent[0]), 1.0), max(float(extent[1]), 1.0)),
         )
@@ -452,7 +456,7 @@ class _Composer:
         centre = ((self.width - 1) / 2, (self.height - 1) / 2)
         extent = (self.width / 2 + self.d_max, self.height / 2)
         field = self.field(centre, extent, d_far, 0.3, rng.random() < 0.2)
-        self.add("background", _Region(self.reach), field, self.painter(centre, extent, False), relative=0.5)
+        self.add("background", _Region(self.reach), field, self.painter(centre, extent, False, hard=0.5), relative=0.5)
         return d_far
 
     def ground(self, d_far: float) -> None:
@@ -467,7 +471,7 @@ class _Composer:
         field = _Disparity(x0=centre[0], y0=centre[1], c=(d_horizon + d_bottom) / 2, a=rng.normal(0.0, 0.02),
                            b=float(b))
         extent = (self.width / 2, (self.height - horizon) / 2)
-        self.add("ground", _Region(box), field, self.painter(centre, extent, False), relative=0.95)
+        self.add("ground", _Region(box), field, self.painter(centre, extent, False, hard=0.5), relative=0.95)
 
     def wall(self) -> None:
         rng = self.rng
@@ -476,13 +480,13 @@ class _Composer:
         centre = self.centre(d)
         shape = _Rectangle(centre, half, float(rng.normal(0.0, 0.05)))
         field = self.field(centre, half, d, 0.9, False)
-        self.add("wall", shape, field, self.painter(centre, half, False), relative=0.9)
+        self.add("wall", shape, field, self.painter(centre, half, False, hard=0.5), relative=0.9)
 
     def thing(self) -> None:
         rng = self.rng
         d = self.depth(0.03, 1.0)
         nearness = 0.5 + d / self.d_max  # nearer objects look larger
-        radius = self.size * _loguniform(rng, 0.02, 0.16) * nearness
+        radius = self.size * _loguniform(rng, 0.025, 0.22) * nearness
         aspect = _loguniform(rng, 1 / 3, 3.0)
         half = (radius * aspect**0.5, radius * aspect**-0.5)
         centre, angle = self.centre(d), float(rng.uniform(0.0, np.pi))
