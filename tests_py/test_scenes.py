@@ -88,7 +88,7 @@ def _simple_scene(height, width, background_slope):
         spread = field.spread(box)
         surfaces.append(scenes._Surface(field=field, shape=scenes._Region(box), paint=painter((0, 0), (10, 10), False),
                                         kind=kind, box=box, d_range=(field.c - spread, field.c + spread)))
-    scene = scenes._Scene(height=height, width=width, max_disparity=12.0, surfaces=tuple(surfaces), cast=np.ones(3))
+    scene = scenes._Scene(height=height, width=width, surfaces=tuple(surfaces), cast=np.ones(3))
     return scene, square_box
 
 

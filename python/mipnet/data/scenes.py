@@ -58,7 +58,7 @@ _REFERENCE_AREA = 160 * 320  # object counts grow with sqrt(area / this)
 _BLOB_ANGLES = 512  # star-shaped blob radius table resolution
 _PHOTO_SHARE = 0.4  # share of surfaces textured with a photograph, where photographs exist
 _PROCEDURAL_SHARE = {"pink": 0.35, "leaves": 0.4, "periodic": 0.25}
-_CHROMA = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.sqrt([[2.0], [6.0]])  # orthonormal chroma axes
+_CHROMA = textures.CHROMA_AXES
 _OPPONENT = np.vstack([np.full(3, 1.0 / np.sqrt(3.0)), _CHROMA])  # orthonormal (grey, chroma, chroma)
 
 
@@ -298,6 +298,11 @@ def _loguniform(rng: np.random.Generator, low: float, high: float) -> float:
     return float(np.exp(rng.uniform(np.log(low), np.log(high))))
 
 
+def _pick(shares: dict, draw: float):
+    """The key whose share interval holds ``draw`` in [0, 1) (inverse CDF of the shares)."""
+    return list(shares)[int(np.searchsorted(np.cumsum(list(shares.values())), draw, side="right"))]
+
+
 def _colour_matrix(contrast: float, saturation: float, hue_turn: float) -> np.ndarray:
     """RGB -> RGB: grey axis scaled by ``contrast``, chroma plane turned by ``hue_turn`` and scaled by
     ``contrast * saturation`` (in the orthonormal opponent basis)."""
@@ -326,9 +331,8 @@ class _Painter:
         if self.photos and photo_draw < _PHOTO_SHARE:
             # Photo index = floor(draw * count): uniform over the installed photographs.
             return textures.photo(self.photos[int(index_draw * len(self.photos))])
-        kinds = list(_PROCEDURAL_SHARE)
-        # Inverse CDF of the procedural kind shares.
-        kind = kinds[int(np.searchsorted(np.cumsum(list(_PROCEDURAL_SHARE.values())), kind_draw, side="right"))]
+        kind = _pick(_PROCEDURAL_SHARE, kind_draw)
+        # Tile index = floor(draw * count): uniform over the tiles of the kind.
         return textures.procedural(kind, int(index_draw * textures.TILES_PER_KIND))
 
     def __call__(self, origin, extent, curved: bool, hard: float = 1.0) -> _Paint:
@@ -344,7 +348,7 @@ class _Painter:
         cos, sin = np.cos(angle), np.sin(angle)
         # Rotation by angle, then the axes scaled by scale * stretch^(+-1/2).
         frame = np.array([[cos, sin], [-sin, cos]]) * (scale * np.array([[stretch**0.5], [stretch**-0.5]]))
-        offset = rng.uniform(0.0, 1.0, 2) * np.array(texture.size[::-1])
+        offset = rng.uniform(0.0, 1.0, 2) * np.array(texture.size[::-1])  # texel (u, v) anywhere in the image
         contrast_class, contrast_draw = rng.random(2)
         if contrast_class < 0.07 * hard:
             contrast = 0.02 * contrast_draw  # textureless
@@ -396,7 +400,6 @@ class _Surface:
 class _Scene:
     height: int
     width: int
-    max_disparity: float
     surfaces: tuple
     cast: np.ndarray  # scene-wide colour of the light, (3,)
 
@@ -447,12 +450,14 @@ class _Composer:
     def centre(self, d: float) -> tuple[float, float]:
         """A centre anywhere either view can see (the right view sees left x up to W - 1 + d)."""
         rng = self.rng
+        # x in [-0.1 W, 1.1 W] plus up to d (what the right view adds), y in [-0.1 H, 1.1 H].
         return (float(rng.uniform(-0.1, 1.1) * self.width + rng.uniform(0.0, 1.0) * d),
                 float(rng.uniform(-0.1, 1.1) * self.height))
 
     def background(self) -> float:
         rng = self.rng
         d_far = self.depth(0.008, 0.08)
+        # Image centre; half sizes of the region both views see (the right view adds d_max in x).
         centre = ((self.width - 1) / 2, (self.height - 1) / 2)
         extent = (self.width / 2 + self.d_max, self.height / 2)
         field = self.field(centre, extent, d_far, 0.3, rng.random() < 0.2)
@@ -464,13 +469,14 @@ class _Composer:
         horizon = rng.uniform(0.25, 0.75) * self.height
         d_horizon = d_far * rng.uniform(1.0, 1.5)
         d_bottom = self.d_max * rng.uniform(0.15, 0.65)
+        # The visible region below the horizon, and its centre.
         box = (self.reach[0], self.reach[1], horizon, self.reach[3])
         centre = ((self.width - 1) / 2, (horizon + self.height - 1) / 2)
         # Linear in y from d_horizon at the horizon to d_bottom at the last row; slight roll in x.
         b = (d_bottom - d_horizon) / max(self.height - 1 - horizon, 1.0)
         field = _Disparity(x0=centre[0], y0=centre[1], c=(d_horizon + d_bottom) / 2, a=rng.normal(0.0, 0.02),
                            b=float(b))
-        extent = (self.width / 2, (self.height - horizon) / 2)
+        extent = (self.width / 2, (self.height - horizon) / 2)  # half sizes of that region
         self.add("ground", _Region(box), field, self.painter(centre, extent, False, hard=0.5), relative=0.95)
 
     def wall(self) -> None:
@@ -488,7 +494,7 @@ class _Composer:
         nearness = 0.5 + d / self.d_max  # nearer objects look larger
         radius = self.size * _loguniform(rng, 0.025, 0.22) * nearness
         aspect = _loguniform(rng, 1 / 3, 3.0)
-        half = (radius * aspect**0.5, radius * aspect**-0.5)
+        half = (radius * aspect**0.5, radius * aspect**-0.5)  # half axes with ratio aspect, geometric mean radius
         centre, angle = self.centre(d), float(rng.uniform(0.0, np.pi))
         kind_draw, curved = rng.random(), rng.random() < 0.45
         if kind_draw < 0.25:
@@ -525,6 +531,7 @@ class _Composer:
         length = rng.uniform(0.4, 1.3) * self.height
         angle = np.pi / 2 + rng.normal(0.0, 0.08)  # pointing down, nearly vertical
         width = self.thin_width(d, rng.uniform(1.0, 2.5))
+        # Mid-point: half the length along (cos angle, sin angle) from the top.
         middle = (top[0] + np.cos(angle) * length / 2, top[1] + np.sin(angle) * length / 2)
         field = self.field(middle, (width, length / 2), d, 0.4, rng.random() < 0.5)
         paint = self.painter(middle, (width, length / 2), True)
@@ -538,6 +545,7 @@ class _Composer:
         angle = rng.normal(0.0, 0.25)
         sag = rng.uniform(0.0, 0.25) * self.height / length**2 * 4  # mid-length sag up to a quarter height
         width = self.thin_width(d, rng.uniform(0.5, 1.0))
+        # Mid-point: half the length along (cos angle, sin angle) from the start.
         middle = (start[0] + np.cos(angle) * length / 2, start[1] + np.sin(angle) * length / 2)
         field = self.field(middle, (length / 2, self.height / 4), d, 0.6, False)
         paint = self.painter(middle, (length / 2, width), False)
@@ -552,7 +560,7 @@ class _Composer:
         length = rng.uniform(0.3, 0.8) * self.height
         width = self.thin_width(d, rng.uniform(1.5, 3.0))
         angle = -np.pi / 2 + rng.normal(0.0, 0.15)  # trunk pointing up
-        middle = (base[0], base[1] - length / 2)
+        middle = (base[0], base[1] - length / 2)  # about half the trunk above its base
         # One disparity field and one paint for the whole tree, so its strokes join seamlessly.
         field = self.field(middle, (length / 2, length / 2), d, 0.4, False)
         paint = self.painter(middle, (length / 2, length / 2), False)
@@ -576,8 +584,8 @@ class _Composer:
         d = self.depth(0.04, 0.8)
         half = tuple(rng.uniform(0.15, 0.5, 2) * np.array([self.width, self.height]))
         centre = self.centre(d)
-        period = rng.uniform(5.0, 20.0) * (0.6 + d / self.d_max)
-        bar = min(rng.uniform(0.5, 2.5), 0.35 * period)
+        period = rng.uniform(5.0, 20.0) * (0.6 + d / self.d_max)  # nearer fences look coarser
+        bar = min(rng.uniform(0.5, 2.5), 0.35 * period)  # bars cover at most 70% of a period
         both = rng.random() < 0.5  # a grid; else a fence of bars across u only (half width -1: no v bars)
         periods = (period, period * _loguniform(rng, 0.6, 1.6))
         upright, any_angle = rng.random(), rng.uniform(0, np.pi)
@@ -589,7 +597,8 @@ class _Composer:
 
 def _compose(seed: int, height: int, width: int, d_max: float) -> tuple[_Scene, tuple]:
     """The scene of ``seed`` and the generators of its left and right cameras."""
-    geometry, look, left_camera, right_camera = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4))
+    streams = np.random.SeedSequence(seed).spawn(4)
+    geometry, look, left_camera, right_camera = (np.random.default_rng(stream) for stream in streams)
     painter = _Painter(look, saturation=look.uniform(0.4, 1.1))
     composer = _Composer(geometry, painter, height, width, d_max)
     # Counts grow with the square root of the image area (clipped to [0.6, 2] times the reference).
@@ -601,14 +610,11 @@ def _compose(seed: int, height: int, width: int, d_max: float) -> tuple[_Scene, 
         composer.wall()
     for _ in range(int(round(geometry.uniform(14, 40) * crowd))):
         composer.thing()
-    thin = {"pole": composer.pole, "wire": composer.wire, "tree": composer.tree, "fence": composer.fence}
-    shares = np.array([0.35, 0.3, 0.2, 0.15])
+    thin = {composer.pole: 0.35, composer.wire: 0.3, composer.tree: 0.2, composer.fence: 0.15}
     for _ in range(int(round(geometry.integers(3, 11) * crowd))):
-        # Inverse CDF of the thin-structure shares.
-        name = list(thin)[int(np.searchsorted(np.cumsum(shares), geometry.random(), side="right"))]
-        thin[name]()
+        _pick(thin, geometry.random())()
     cast = np.exp(look.normal(0.0, 0.08, 3)).astype(np.float32)  # colour of the light
-    scene = _Scene(height=height, width=width, max_disparity=d_max, surfaces=tuple(composer.surfaces), cast=cast)
+    scene = _Scene(height=height, width=width, surfaces=tuple(composer.surfaces), cast=cast)
     return scene, (left_camera, right_camera)
 
 

@@ -56,7 +56,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Texture", "PHOTOS", "PROCEDURAL_KINDS", "TILES_PER_KIND", "photo_sources", "available_photos",
+from ..errors import ArgumentError
+
+__all__ = ["Texture", "PHOTOS", "PROCEDURAL_KINDS", "TILES_PER_KIND", "CHROMA_AXES", "photo_sources", "available_photos",
            "photo", "procedural"]
 
 TILE_SIZE = 256  # procedural tile side (px); every period used divides it, so tiles wrap seamlessly
@@ -65,6 +67,8 @@ PROCEDURAL_KINDS = ("pink", "leaves", "periodic")
 _PHOTO_MAX_SIDE = 512  # larger photographs are reduced to this on loading
 _MIN_LEVEL_SIDE = 16  # the coarsest mip level keeps at least this many pixels per side
 _TILE_SEED = 0x7E57  # root of the tiles' seeds: tile (kind, index) is a fixed function of them
+# Two orthonormal RGB directions orthogonal to grey (red-green, yellow-blue).
+CHROMA_AXES = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.sqrt([[2.0], [6.0]])
 
 # (distribution name, import name, path inside the package, short name, licence)
 PHOTOS: tuple[tuple[str, str, str, str, str], ...] = (
@@ -244,8 +248,6 @@ def photo(name: str) -> Texture:
     """
     from PIL import Image
 
-    from ..errors import ArgumentError
-
     entries = {entry[3]: entry for entry in PHOTOS}
     path = _photo_path(entries[name][1], entries[name][2]) if name in entries else None
     if path is None:
@@ -264,8 +266,8 @@ def photo(name: str) -> Texture:
 
 
 def _opponent_basis() -> np.ndarray:
-    """Rows: the grey axis and two orthonormal chroma axes of RGB (scaled so grey maps to 1)."""
-    return np.array([[1.0, 1.0, 1.0], [1.0, -1.0, 0.0] / np.sqrt(2.0), [1.0, 1.0, -2.0] / np.sqrt(6.0)])
+    """Rows: the grey axis (scaled so a grey amplitude g gives RGB (g, g, g)) and the chroma axes."""
+    return np.vstack([np.ones(3), CHROMA_AXES])
 
 
 def _pink_field(rng: np.random.Generator, size: int, alpha: float, stretch: float, angle: float) -> np.ndarray:
@@ -310,6 +312,7 @@ def _dead_leaves_tile(rng: np.random.Generator, size: int) -> np.ndarray:
     # Inverse CDF of the r^-3 density: r = (r_min^-2 - u (r_min^-2 - r_max^-2))^-1/2.
     radius = (r_min**-2 - rng.random(count) * (r_min**-2 - r_max**-2)) ** -0.5
     centre = rng.uniform(0, size, (count, 2))
+    # Opponent (grey, chroma, chroma) mean and spread of the leaves' colours.
     mean = rng.uniform(0.25, 0.75) * np.array([1.0, 0.0, 0.0]) + rng.normal(0.0, 0.06, 3) * [0.0, 1.0, 1.0]
     spread = np.array([rng.uniform(0.08, 0.25), *np.full(2, rng.uniform(0.01, 0.12))])
     colours = (mean + rng.normal(0.0, 1.0, (count, 3)) * spread) @ _opponent_basis()
@@ -321,7 +324,8 @@ def _dead_leaves_tile(rng: np.random.Generator, size: int) -> np.ndarray:
         # Pixels (integer centres) of each disc's bounding square, relative to its centre.
         px = np.floor(centre[members, 0])[:, None] + dx
         py = np.floor(centre[members, 1])[:, None] + dy
-        inside = (px - centre[members, 0, None]) ** 2 + (py - centre[members, 1, None]) ** 2 <= radius[members, None] ** 2
+        distance2 = (px - centre[members, 0, None]) ** 2 + (py - centre[members, 1, None]) ** 2
+        inside = distance2 <= radius[members, None] ** 2
         # Flat index of the wrapped pixel: (y mod size) * size + (x mod size).
         flat = (py.astype(np.int64) % size) * size + px.astype(np.int64) % size
         order = np.broadcast_to(members[:, None], flat.shape)
@@ -369,8 +373,6 @@ def procedural(kind: str, index: int) -> Texture:
 
     A fixed function of (kind, index), generated on first use and cached.
     """
-    from ..errors import ArgumentError
-
     if kind not in _GENERATORS or not 0 <= int(index) < TILES_PER_KIND:
         raise ArgumentError(
             f"procedural: need kind in {PROCEDURAL_KINDS} and 0 <= index < {TILES_PER_KIND}, got {kind!r}, {index}"
