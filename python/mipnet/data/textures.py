@@ -58,8 +58,8 @@ import numpy as np
 
 from ..errors import ArgumentError
 
-__all__ = ["Texture", "PHOTOS", "PROCEDURAL_KINDS", "TILES_PER_KIND", "CHROMA_AXES", "photo_sources", "available_photos",
-           "photo", "procedural"]
+__all__ = ["Texture", "PHOTOS", "PROCEDURAL_KINDS", "TILES_PER_KIND", "CHROMA_AXES", "photo_sources",
+           "available_photos", "photo", "procedural"]
 
 TILE_SIZE = 256  # procedural tile side (px); every period used divides it, so tiles wrap seamlessly
 TILES_PER_KIND = 24
