@@ -119,7 +119,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-DATASETS = ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater", "sceneflow", "middlebury2014", "middeval3", "eth3d",
+DATASETS = ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater", "motorcycle", "sceneflow", "middlebury2014", "middeval3", "eth3d",
             "kitti2012", "kitti2015", "crestereo")
 
 
@@ -134,6 +134,8 @@ def open_dataset(args: argparse.Namespace):
             raise SystemExit(f"mipnet eval: --dataset {args.dataset} needs --preset (clear, coastal, turbid, low_light, random)")
         generator = data.SceneStereo if args.dataset.startswith("scenes") else data.SyntheticStereo
         return generator(args.n, h, w, seed=args.seed, underwater=args.preset if underwater else None)
+    if args.dataset == "motorcycle":  # a real Middlebury pair bundled in scikit-image (evaluation only)
+        return data.RealPairs("motorcycle", underwater=args.preset, seed=args.seed)
     if not args.root:
         raise SystemExit(f"mipnet eval: --dataset {args.dataset} needs --root DIR")
     make = {
@@ -170,7 +172,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if "sgbm" in methods:
         full, covered = sgbm_rows(pairs(), aggregation=args.aggregation)
         rows += [{**full, "method": "SGBM (full coverage)"}, {**covered, "method": "SGBM (covered)"}]
-    name = args.dataset + (f" ({args.preset})" if args.dataset.endswith("-underwater") else "")
+    name = args.dataset + (f" ({args.preset})" if args.preset else "")
     print(f"{name}: {count} pairs, {args.aggregation} over images; bad-x and d1 in percent, epe/a90/rms in px")
     print(format_table(rows))
     return 0

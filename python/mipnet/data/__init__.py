@@ -14,6 +14,7 @@ from .datasets import (
     StereoDataset,
 )
 from .loader import DataLoader, default_collate
+from .real import REAL_SETS, RealPairs
 from .scenes import GENERATOR_VERSION, SceneStereo, make_scene
 from .synthetic import SyntheticStereo, make_pair, synthetic_underwater_pairs
 
@@ -37,4 +38,6 @@ __all__ = [
     "SceneStereo",
     "make_scene",
     "GENERATOR_VERSION",
+    "RealPairs",
+    "REAL_SETS",
 ]
