@@ -18,18 +18,42 @@ UNTRAINED_SEED = 0
 
 
 def load_model(weights: str | None, quiet: bool = False):
-    """The model to run: the weights file given, else the default weights. No trained default weights
-    ship yet, so the default is the untrained network (seeded initialisation), and this says so."""
+    """The model to run: the weights file given, else the weights shipped with the package; an
+    installation without them falls back to the untrained network (seeded) and says so."""
     import mipnet
+    from . import pretrained
 
     if weights:
         return mipnet.load(weights).eval()
+    if pretrained.available():
+        return pretrained.load_pretrained()
     if not quiet:
-        print("WARNING: no trained MIPNet weights are available yet: this is the UNTRAINED network "
+        print("WARNING: this installation ships no trained MIPNet weights: this is the UNTRAINED network "
               f"(random initialisation, seed {UNTRAINED_SEED}); its disparities are not meaningful. "
               "Pass --weights FILE.safetensors to use trained weights.", file=sys.stderr)
     mipnet.manual_seed(UNTRAINED_SEED)
     return mipnet.MIPNet().eval()
+
+
+def describe_weights(weights: str | None) -> list[str]:
+    """Lines saying what a weights file (default: the shipped one) was trained on."""
+    from . import pretrained
+    from .weights import load_safetensors
+
+    if weights:
+        _, meta = load_safetensors(weights)
+        label = weights
+    elif pretrained.available():
+        meta, label = pretrained.pretrained_info(), f"shipped ({pretrained.PRETRAINED_PATH.name})"
+    else:
+        return ["weights: none shipped (untrained network)"]
+    lines = [f"weights: {label}"]
+    for key in ("trained", "step", "generator_version", "mipnet_version", "commands"):
+        if key in meta:
+            lines.append(f"  {key}: {meta[key]}")
+    if "validation" in meta:
+        lines.append(f"  validation: {meta['validation']}")
+    return lines
 
 
 class Progress:
@@ -102,9 +126,9 @@ def _write_npy(path: str, array: np.ndarray) -> None:
 def cmd_info(args: argparse.Namespace) -> int:
     import mipnet
 
-    model = load_model(args.weights, quiet=True) if args.weights else mipnet.MIPNet()
+    model = load_model(args.weights, quiet=True)
     print(f"mipnet {mipnet.__version__}  threads={mipnet.get_num_threads()}  dtype={model.dtype}")
-    print(f"weights: {args.weights or 'none (untrained network)'}")
+    print("\n".join(describe_weights(args.weights)))
     print("config: " + ", ".join(f"{k}={v}" for k, v in vars(model.config).items()))
     counts: dict[str, int] = {}
     for name, p in model.named_parameters():
@@ -151,6 +175,7 @@ def open_dataset(args: argparse.Namespace):
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from . import pretrained
     from .evaluation import evaluate_method, format_table, result_row, sgbm_rows
 
     dataset = open_dataset(args)
@@ -167,7 +192,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
             progress.step("")
             return disp
 
-        rows.append(result_row("MIPNet" + ("" if args.weights else " (untrained)"), evaluate_method(pairs(), predict),
+        trained = bool(args.weights) or pretrained.available()
+        rows.append(result_row("MIPNet" + ("" if trained else " (untrained)"), evaluate_method(pairs(), predict),
                                args.aggregation))
     if "sgbm" in methods:
         full, covered = sgbm_rows(pairs(), aggregation=args.aggregation)
