@@ -43,14 +43,12 @@ import numpy as np
 
 from ..errors import ArgumentError
 from . import textures
-from .datasets import Dataset
-from .synthetic import _rotate, apply_water
+from .synthetic import EVAL_SEED_START, GeneratedStereo, _rotate, check_seed, check_size
 
 __all__ = ["make_scene", "SceneStereo", "GENERATOR_VERSION", "EVAL_SEED_START"]
 
 _SOURCES = textures.photo_sources()
 GENERATOR_VERSION = "scenes-1+" + ("photos:" + ",".join(_SOURCES) if _SOURCES else "procedural-only")
-EVAL_SEED_START = 1_000_000  # training pairs use seeds below it, evaluation pairs from it on
 
 _MAX_X_SLOPE = 0.5  # |dd/dx| bound over a surface's box: x - d(x) stays increasing, stretch in [2/3, 2]
 _D_FLOOR = 0.004  # smallest disparity, as a fraction of the maximum
@@ -754,18 +752,6 @@ def _render(scene: _Scene, cameras: tuple, clean: bool, layers: bool) -> dict:
     return pair
 
 
-def _check_size(function: str, height, width) -> tuple[int, int]:
-    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in (height, width)):
-        raise ArgumentError(f"{function}: height and width must be positive integers, got {height!r} x {width!r}")
-    return int(height), int(width)
-
-
-def _check_seed(function: str, seed) -> int:
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-        raise ArgumentError(f"{function}: seed must be a non-negative integer, got {seed!r}")
-    return int(seed)
-
-
 def make_scene(height: int, width: int, seed: int, *, max_disparity: float | None = None, clean: bool = False,
                layers: bool = False) -> dict:
     """A procedural rectified stereo pair with exact left disparity (see the module docstring).
@@ -798,8 +784,8 @@ def make_scene(height: int, width: int, seed: int, *, max_disparity: float | Non
     ------
     left, right: (H, W, 3); disparity, valid, surface_left, surface_right: (H, W).
     """
-    height, width = _check_size("make_scene", height, width)
-    seed = _check_seed("make_scene", seed)
+    height, width = check_size("make_scene", height, width)
+    seed = check_seed("make_scene", seed)
     if max_disparity is None:
         d_max = width / 4.0
     else:
@@ -810,68 +796,14 @@ def make_scene(height: int, width: int, seed: int, *, max_disparity: float | Non
     return _render(scene, cameras, clean, layers)
 
 
-class SceneStereo(Dataset):
-    """``n`` scenes of :func:`make_scene`; item i uses pair seed ``seed + i``, optionally underwater.
-
-    Training sets use seeds below ``EVAL_SEED_START`` (1,000,000) and evaluation sets start at it;
-    a set may not straddle it.
-
-    Parameters
-    ----------
-    n : int
-        Number of pairs.
-    height, width : int
-        Image size.
-    seed : int
-        First pair seed.
-    underwater : None, str, WaterParams or dict
-        None: in air; a ``WaterParams``; a preset name of :data:`mipnet.underwater.PRESETS`; ``"random"``: water drawn
-        per item by :func:`mipnet.underwater.random_water` from a generator seeded by the pair
-        seed; or a dict of :func:`mipnet.underwater.degrade` keyword arguments (``preset`` plus
-        ``WaterParams`` overrides).
-
-    Shapes
-    ------
-    items: left, right (H, W, 3) uint8; disparity (H, W) float32; valid (H, W) bool.
-    """
+class SceneStereo(GeneratedStereo):
+    """``n`` natural-statistics scenes of :func:`make_scene` (see :class:`GeneratedStereo` for the
+    seeds, the held-out split and ``underwater``)."""
 
     name = "scenes"
 
-    def __init__(self, n: int, height: int, width: int, seed: int = 0, underwater=None):
-        from ..underwater import PRESETS, WaterParams, _resolve_params
+    def generate(self, height: int, width: int, seed: int) -> dict:
+        return make_scene(height, width, seed)
 
-        if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 0:
-            raise ArgumentError(f"SceneStereo: n must be a non-negative integer, got {n!r}")
-        self.height, self.width = _check_size("SceneStereo", height, width)
-        self.seed = _check_seed("SceneStereo", seed)
-        self.n = int(n)
-        if self.n and self.seed < EVAL_SEED_START <= self.seed + self.n - 1:
-            raise ArgumentError(
-                f"SceneStereo: seeds {self.seed}..{self.seed + self.n - 1} straddle {EVAL_SEED_START:,} "
-                "(training seeds lie below it, evaluation seeds from it on)"
-            )
-        if isinstance(underwater, dict):
-            options = dict(underwater)
-            try:
-                _resolve_params(options.pop("preset", "coastal"), options)
-            except (TypeError, ValueError) as error:
-                raise ArgumentError(f"SceneStereo: bad underwater options {underwater!r}: {error}") from None
-        elif not (underwater is None or underwater == "random" or isinstance(underwater, WaterParams)
-                  or (isinstance(underwater, str) and underwater in PRESETS)):
-            raise ArgumentError(
-                f"SceneStereo: underwater must be None, 'random', a WaterParams, a dict or one of {list(PRESETS)}, "
-                f"got {underwater!r}"
-            )
-        self.underwater = underwater
-
-    def __len__(self) -> int:
-        return self.n
-
-    def __getitem__(self, index: int) -> dict:
-        index = self._check_index(index)
-        pair_seed = self.seed + index
-        pair = make_scene(self.height, self.width, pair_seed)
-        label = apply_water(pair, self.underwater, pair_seed)
-        pair["meta"] = {"dataset": self.name, "index": index, "seed": pair_seed, "underwater": label,
-                        "generator": GENERATOR_VERSION, "photo_sources": _SOURCES}
-        return pair
+    def extra_meta(self) -> dict:
+        return {"generator": GENERATOR_VERSION, "photo_sources": _SOURCES}
