@@ -150,7 +150,9 @@ class _Region:
 
 
 @dataclass(frozen=True)
-class _Ellipse:
+class _Oriented:
+    """A shape given in its own frame: centre, half axes along and across, rotation angle."""
+
     centre: tuple
     half_axes: tuple
     angle: float
@@ -160,24 +162,20 @@ class _Ellipse:
         return _rotated_box(self.centre, self.angle, (-self.half_axes[0], self.half_axes[0]),
                             (-self.half_axes[1], self.half_axes[1]))
 
+    def _local(self, x, y):
+        """(u, v): the point in the shape's frame (rotated about the centre)."""
+        return _rotate(x - self.centre[0], y - self.centre[1], self.angle)
+
+
+class _Ellipse(_Oriented):
     def covers(self, x, y):
-        u, v = _rotate(x - self.centre[0], y - self.centre[1], self.angle)
+        u, v = self._local(x, y)
         return (u / self.half_axes[0]) ** 2 + (v / self.half_axes[1]) ** 2 <= 1.0
 
 
-@dataclass(frozen=True)
-class _Rectangle:
-    centre: tuple
-    half_axes: tuple
-    angle: float
-
-    @property
-    def box(self):
-        return _rotated_box(self.centre, self.angle, (-self.half_axes[0], self.half_axes[0]),
-                            (-self.half_axes[1], self.half_axes[1]))
-
+class _Rectangle(_Oriented):
     def covers(self, x, y):
-        u, v = _rotate(x - self.centre[0], y - self.centre[1], self.angle)
+        u, v = self._local(x, y)
         return (np.abs(u) <= self.half_axes[0]) & (np.abs(v) <= self.half_axes[1])
 
 
