@@ -15,11 +15,11 @@ from typing import Callable
 
 import numpy as np
 
-from .data.loader import DataLoader
-from .errors import ArgumentError
-from .losses import sequence_loss, sequence_metrics
-from .model import MIPNet
-from .optim import AdamW, OneCycleLR, clip_grad_norm_
+from ..data.loader import DataLoader
+from ..errors import ArgumentError
+from ..losses import sequence_loss, sequence_metrics
+from ..model import MIPNet
+from ..optim import AdamW, OneCycleLR, clip_grad_norm_
 
 
 @dataclasses.dataclass
