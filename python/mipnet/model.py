@@ -207,13 +207,20 @@ class MIPNet(Module):
 
 def load(path: str, strict: bool = True) -> MIPNet:
     """A ``MIPNet`` built from the config stored in a safetensors file written by ``MIPNet.save``,
-    with its weights loaded."""
+    with its weights loaded. A file that is not such weights raises ``FormatError`` naming it."""
+    from .errors import FormatError
     from .weights import load_safetensors
 
     tensors, meta = load_safetensors(path)
-    config = json.loads(meta["config"]) if "config" in meta else {}
-    model = MIPNet(**config)
-    model.load_state_dict(tensors, strict=strict)
+    try:
+        config = json.loads(meta["config"]) if "config" in meta else {}
+        if not isinstance(config, dict):
+            raise TypeError(f"the config is a JSON {type(config).__name__}, not an object")
+        model = MIPNet(**config)
+        model.load_state_dict(tensors, strict=strict)
+    except (ValueError, TypeError, RuntimeError) as e:  # bad JSON, unknown or bad config keys, missing/odd weights
+        message = " ".join(str(e).split())
+        raise FormatError(f"{path}: not MIPNet weights ({message[:300]}{'...' if len(message) > 300 else ''})") from None
     return model
 
 
