@@ -81,6 +81,16 @@ def describe(error: BaseException) -> str:
     return " ".join(text.split())
 
 
+def naming(files: tuple[str, ...], error: BaseException) -> str:
+    """:func:`describe` of an error met on ``files``, prefixed with them unless it names one already."""
+    message = describe(error)
+    return message if any(f in message for f in files) else f"{' + '.join(files)}: {message}"
+
+
+class PairError(MipnetError):
+    """A user error met on one pair of images, re-raised with a message that names the pair's files."""
+
+
 class Failures:
     """The pairs that failed in a run over many: each reported when it happens, all listed at the end."""
 
@@ -98,9 +108,7 @@ class Failures:
     def add(self, files: tuple[str, ...], error: BaseException) -> None:
         if self.debug:
             traceback.print_exc()
-        message = describe(error)
-        named = any(f in message for f in files)
-        self.items[files] = message if named else f"{' + '.join(files)}: {message}"
+        self.items[files] = naming(files, error)
         print(f"{self.command}: skipped {self.items[files]}", file=sys.stderr)
 
     def report(self, total: int) -> int:
@@ -155,12 +163,14 @@ def cmd_infer(args: argparse.Namespace) -> int:
     if len(lefts) != len(rights):
         raise ArgumentError(f"{len(lefts)} left images ({args.left}) but {len(rights)} right images ({args.right})")
     calib = io.read_calib(args.calib) if args.calib else None
+    # a single pair is checked before the model loads, so that its error is the only line printed
+    first = read_pair(lefts[0], rights[0]) if len(lefts) == 1 else None
     model = load_model(args.weights)
     out = Path(args.output_directory)
     out.mkdir(parents=True, exist_ok=True)
 
-    def infer_pair(lp: str, rp: str) -> None:
-        left, right = read_pair(lp, rp)
+    def infer_pair(lp: str, rp: str, images: tuple | None = None) -> None:
+        left, right = images or read_pair(lp, rp)
         disp = model(left, right, iters=tuple(args.iters), seed=args.seed)
         stem = out / Path(lp).stem
         _write_npy(f"{stem}_disp.npy", disp)
@@ -173,7 +183,10 @@ def cmd_infer(args: argparse.Namespace) -> int:
             io.write_ply(f"{stem}_points.ply", points, colors)
 
     if len(lefts) == 1:  # a single pair: its error is the command's error (status 2)
-        infer_pair(lefts[0], rights[0])
+        try:
+            infer_pair(lefts[0], rights[0], first)
+        except USER_ERRORS as error:
+            raise PairError(naming((lefts[0], rights[0]), error)) from error
         print(f"wrote 1 disparity map to {out}/")
         return 0
     failures = Failures("mipnet infer", args.debug)
@@ -209,6 +222,13 @@ def cmd_info(args: argparse.Namespace) -> int:
     for key, n in counts.items():
         print(f"  {key:<{width}}  {n:>10,}")
     print(f"  {'total':<{width}}  {model.num_parameters():>10,}")
+    if args.size:
+        from . import memory
+
+        room = memory.available_memory()
+        print("memory (estimated" + (f"; available now {memory.format_bytes(room[0])}, {room[1]}):" if room else "):"))
+        for mode in ("eval", "train"):
+            print("  " + memory.estimate(*args.size, args.batch, mode, args.iters, model).describe())
     return 0
 
 
@@ -353,8 +373,12 @@ def build_parser() -> argparse.ArgumentParser:
     inf.add_argument("--seed", type=int, default=20, help="seed of the gamma initialisation (default 20)")
     inf.set_defaults(func=cmd_infer)
 
-    info = sub.add_parser("info", help="config, parameter counts per module, thread count")
+    info = sub.add_parser("info", help="config, parameter counts per module, thread count, memory estimates")
     info.add_argument("--weights", help="weights file to describe")
+    info.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), action=ImageSize,
+                      help="also print the peak memory of an eval forward and a training step at this image size")
+    info.add_argument("--batch", type=positive_int, default=1, help="image pairs per pass for --size (default 1)")
+    info.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
     info.set_defaults(func=cmd_info)
 
     ev = sub.add_parser("eval", help="metrics of MIPNet and OpenCV SGBM on a dataset")

@@ -3,8 +3,9 @@ RGB images, Middlebury/ETH3D ``calib.txt`` and FoundationStereo ``K.txt`` calibr
 
 Every reader raises :class:`mipnet.errors.FormatError` (naming the file) when a file is corrupt,
 truncated or not in the expected format; a file that cannot be opened raises the usual ``OSError``
-(``FileNotFoundError``, ``IsADirectoryError``, ``PermissionError``). No reader allocates more than
-its file can hold: a header claiming more data than the file has is rejected before any allocation.
+(``FileNotFoundError``, ``IsADirectoryError``, ``PermissionError``). A header claiming more data than
+the file holds is rejected before anything is allocated (PFM, ``.npy``; PNG against the most deflate
+can expand); any image, whatever its format, is limited to ``PIL.Image.MAX_IMAGE_PIXELS`` pixels.
 Every writer is atomic: the data goes to a temporary file in the target directory that is renamed
 onto the target only once it is complete.
 """

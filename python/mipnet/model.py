@@ -14,9 +14,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import ops
-from .autograd import no_grad
+from .autograd import is_grad_enabled, no_grad
 from .blocks import Encoder, UpdateBlock, ip_update_block, rls_update_block
 from .errors import ArgumentError, ShapeError
+from .memory import check_forward
 from .nn import BatchNorm2d, Module
 from .random import default_generator
 from .tensor import Tensor
@@ -114,6 +115,7 @@ class MIPNet(Module):
         if l.shape != r.shape:
             raise ShapeError(f"MIPNet: left and right images differ in shape: left={list(l.shape)}, right={list(r.shape)}")
         pad = _padding(l.shape[2], l.shape[3])
+        check_forward(self, l.shape, (n16, n4), self.training and is_grad_enabled())  # MemoryLimitError before OOM
         if self.training:
             preds = self._run(l, r, pad, n16, n4, seed, disp_init)
             return [_crop(p, pad, l.shape) for p in preds]
