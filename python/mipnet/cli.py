@@ -208,6 +208,8 @@ def _write_npy(path: str, array: np.ndarray) -> None:
 def cmd_info(args: argparse.Namespace) -> int:
     import mipnet
 
+    if args.measure and not args.size:
+        raise ArgumentError("--measure needs --size H W")
     model = load_model(args.weights, quiet=True) if args.weights else mipnet.MIPNet()
     print(f"mipnet {mipnet.__version__}  threads={mipnet.get_num_threads()}  dtype={model.dtype}")
     print(f"weights: {args.weights or 'none (untrained network)'}")
@@ -228,7 +230,15 @@ def cmd_info(args: argparse.Namespace) -> int:
         room = memory.available_memory()
         print("memory (estimated" + (f"; available now {memory.format_bytes(room[0])}, {room[1]}):" if room else "):"))
         for mode in ("eval", "train"):
-            print("  " + memory.estimate(*args.size, args.batch, mode, args.iters, model).describe())
+            needed = memory.estimate(*args.size, args.batch, mode, args.iters, model)
+            line = "  " + needed.describe()
+            if args.measure and room and needed.activations > room[0]:
+                line += "; not measured: more than is available"
+            elif args.measure:
+                measured = memory.measure_peak(*args.size, args.batch, mode, args.iters)
+                line += (f"; measured {memory.format_bytes(measured)} ({100 * (needed.total / measured - 1):+.0f}%, "
+                         "fresh process, default float32 model)")
+            print(line, flush=True)
     return 0
 
 
@@ -379,6 +389,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="also print the peak memory of an eval forward and a training step at this image size")
     info.add_argument("--batch", type=positive_int, default=1, help="image pairs per pass for --size (default 1)")
     info.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
+    info.add_argument("--measure", action="store_true",
+                      help="with --size: also run each pass in a fresh process and print its measured peak memory")
     info.set_defaults(func=cmd_info)
 
     ev = sub.add_parser("eval", help="metrics of MIPNet and OpenCV SGBM on a dataset")

@@ -19,10 +19,12 @@ import os
 import re
 from typing import Any
 
+import numpy as np
+
 from .errors import ArgumentError, MemoryLimitError
 
-__all__ = ["MemoryEstimate", "estimate", "activation_bytes", "available_memory", "check", "check_forward",
-           "format_bytes"]
+__all__ = ["MemoryEstimate", "estimate", "activation_bytes", "activation_terms", "available_memory", "check",
+           "check_forward", "format_bytes", "measure_peak"]
 
 MiB = 2**20
 #: Resident memory of a fresh process after ``import mipnet`` (interpreter, numpy, Pillow, the Rust
@@ -68,10 +70,19 @@ def format_bytes(n: float) -> str:
 
 def activation_bytes(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
                      config: Any = None, itemsize: int = 4) -> int:
-    """The bytes a MIPNet pass adds to the process at its peak: THE memory model of the network.
+    """The bytes a MIPNet pass adds to the process at its peak: the sum of :func:`activation_terms`."""
+    return int(sum(activation_terms(height, width, batch, mode, iters, config, itemsize).values()))
+
+
+def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
+                     config: Any = None, itemsize: int = 4) -> dict[str, float]:
+    """THE memory model of the network: the parts of a pass's peak, in bytes, by name.
 
     Every term is (channels per image) x (pixels at its level) x ``itemsize``, at the levels of the
     padded input (H, W multiples of 16): 1 (full resolution), 2, 4 (features, 1/4 updates) and 16.
+    Eval: ``live`` (the largest set of tensors alive at once) and ``allocator`` (what the heap keeps
+    and kernels add on top). Training: what the forward saves for backward (``encoder``, ``levels``,
+    ``updates``, ``loss``) and the ``backward`` working set.
 
     Parameters
     ----------
@@ -90,8 +101,8 @@ def activation_bytes(height: int, width: int, batch: int = 1, mode: str = "eval"
 
     Returns
     -------
-    int
-        Bytes.
+    dict
+        Name -> bytes.
     """
     from .model import MIPNetConfig
 
@@ -120,10 +131,10 @@ def activation_bytes(height: int, width: int, batch: int = 1, mode: str = "eval"
         else:
             # an RLS update at 1/4: F_L, F_R, hidden, context (768), warped F_R (256), the GRU's [h, x] (384 x 2)
             stage4 = level(768 + 256 + 2 * 384, 4)
-        peak = images + max(encoder, stage4)
+        live = images + max(encoder, stage4)
         # the encoder's tensors decide whether the memory it frees stays in the heap (see EVAL_HEAP_FACTOR)
         heap_sized = 64 * px[2] * 2 * batch * itemsize < MMAP_THRESHOLD_MAX
-        return int(peak * (EVAL_HEAP_FACTOR if heap_sized else EVAL_MMAP_FACTOR))
+        return {"live": live, "allocator": live * ((EVAL_HEAP_FACTOR if heap_sized else EVAL_MMAP_FACTOR) - 1)}
 
     # ---- training: what the forward saves for backward (each array once, however many ops save it)
     per_block = 16 if cfg.use_aff else 6  # x channels of one ResBlock with output channels c (see below)
@@ -152,16 +163,18 @@ def activation_bytes(height: int, width: int, batch: int = 1, mode: str = "eval"
     # backward, on top of the saved tensors while they are freed: the gradients accumulated for the
     # tensors all 1/4 iterations read (shared, hidden and context) and those flowing through one update
     backward = level(shared + 256 + max(ip_call if cfg.use_ip else 0, rls_call if cfg.use_rls else 0), 4)
-    return int(encoder + levels + updates + loss + backward)
+    return {"encoder": encoder, "levels": levels, "updates": updates, "loss": loss, "backward": backward}
 
 
 def model_bytes(model: Any = None, itemsize: int = 4) -> int:
-    """Bytes of the parameters and buffers of ``model`` (default: a full MIPNet of ``itemsize``)."""
+    """Bytes of the parameters and buffers of ``model`` (default: a full MIPNet of ``itemsize``),
+    counted without copying them."""
     if model is None:
         from .model import MIPNet
 
-        return sum(a.size for a in MIPNet().state_dict().values()) * itemsize
-    return sum(a.nbytes for a in model.state_dict().values())
+        return model_bytes(MIPNet()) // 4 * itemsize
+    return (sum(p.data.nbytes for p in model.parameters())
+            + sum(np.asarray(b).nbytes for _, b in model.named_buffers()))
 
 
 def estimate(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
@@ -261,3 +274,44 @@ def check_forward(model: Any, shape: tuple[int, ...], iters: tuple[int, int], tr
     """The check :meth:`MIPNet.forward` runs before a pass on an (N, 3, H, W) input."""
     n, _, h, w = shape
     check(estimate(h, w, n, "train" if training else "eval", iters, model))
+
+
+# ------------------------------------------------------------------------------ measured peaks
+
+# Runs in a fresh process: builds a float32 MIPNet, runs one pass, prints its peak resident memory.
+_MEASURE = r"""
+import json, resource, sys
+import numpy as np
+import mipnet
+mode, h, w, n, n16, n4 = sys.argv[1], *map(int, sys.argv[2:7])
+mipnet.manual_seed(0)
+model = mipnet.MIPNet()
+rng = np.random.default_rng(0)
+left = rng.uniform(0, 255, (n, 3, h, w)).astype(np.float32)
+right = np.roll(left, -4, axis=3)
+if mode == "eval":
+    model.eval()(left, right, iters=(n16, n4))
+else:
+    gt = np.full((n, 1, h, w), 4.0, np.float32)
+    mipnet.losses.sequence_loss(model.train()(left, right, iters=(n16, n4)), gt, gt > 0).backward()
+print(json.dumps({"peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}))
+"""
+
+
+def measure_peak(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
+                 threads: int | None = None) -> int:
+    """Peak resident memory (bytes, ``ru_maxrss``) of a fresh Python process that runs one pass of a
+    float32 MIPNet: what :meth:`MemoryEstimate.total` predicts. The child runs the memory check, so a
+    pass too large for this machine raises instead of exhausting it."""
+    import json
+    import subprocess
+    import sys
+
+    env = dict(os.environ)
+    if threads:
+        env["MIPNET_NUM_THREADS"] = str(threads)
+    args = [mode, height, width, batch, *iters]
+    done = subprocess.run([sys.executable, "-c", _MEASURE, *map(str, args)], capture_output=True, text=True, env=env)
+    if done.returncode != 0:
+        raise RuntimeError(f"measure_peak {mode} {height}x{width}: the child failed: {done.stderr.strip()[-500:]}")
+    return int(json.loads(done.stdout.strip().splitlines()[-1])["peak"])
