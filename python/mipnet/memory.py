@@ -280,7 +280,7 @@ def check_forward(model: Any, shape: tuple[int, ...], iters: tuple[int, int], tr
 
 # Runs in a fresh process: builds a float32 MIPNet, runs one pass, prints its peak resident memory.
 _MEASURE = r"""
-import json, resource, sys
+import json, sys
 import numpy as np
 import mipnet
 mode, h, w, n, n16, n4 = sys.argv[1], *map(int, sys.argv[2:7])
@@ -294,13 +294,16 @@ if mode == "eval":
 else:
     gt = np.full((n, 1, h, w), 4.0, np.float32)
     mipnet.losses.sequence_loss(model.train()(left, right, iters=(n16, n4)), gt, gt > 0).backward()
-print(json.dumps({"peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}))
+# VmHWM, the peak of this process's own memory map: ru_maxrss would also count the parent's resident
+# memory at fork time, which Linux carries over exec
+hwm = next(line for line in open("/proc/self/status") if line.startswith("VmHWM:"))
+print(json.dumps({"peak": int(hwm.split()[1]) * 1024}))
 """
 
 
 def measure_peak(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
                  threads: int | None = None) -> int:
-    """Peak resident memory (bytes, ``ru_maxrss``) of a fresh Python process that runs one pass of a
+    """Peak resident memory (bytes, ``VmHWM``; Linux) of a fresh Python process that runs one pass of a
     float32 MIPNet: what :meth:`MemoryEstimate.total` predicts. The child runs the memory check, so a
     pass too large for this machine raises instead of exhausting it."""
     import json
