@@ -40,7 +40,7 @@ def run(args, capsys):
     """(exit status, stdout, stderr lines) of ``mipnet.cli.main(args)``."""
     code = main([str(a) for a in args])
     out, err = capsys.readouterr()
-    return code, out, [line for line in err.splitlines() if line and not line.startswith("WARNING: no trained")]
+    return code, out, [line for line in err.splitlines() if line and not line.startswith("WARNING: ")]
 
 
 def infer(files, left, right, *extra):

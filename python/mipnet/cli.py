@@ -1,4 +1,4 @@
-"""The ``mipnet`` command line: ``info``, ``infer``, ``eval``. Also ``python -m mipnet``.
+"""The ``mipnet`` command line: ``info``, ``infer``, ``eval``, ``train``. Also ``python -m mipnet``.
 
 Errors are handled once, in :func:`main`, for every subcommand: a user error (a missing, unreadable
 or corrupt file, images of different sizes, bad calibration or weights, a bad flag value, not enough
@@ -29,18 +29,42 @@ UNTRAINED_SEED = 0
 
 
 def load_model(weights: str | None, quiet: bool = False):
-    """The model to run: the weights file given, else the default weights. No trained default weights
-    ship yet, so the default is the untrained network (seeded initialisation), and this says so."""
+    """The model to run: the weights file given, else the weights shipped with the package; an
+    installation without them falls back to the untrained network (seeded) and says so."""
     import mipnet
+    from . import pretrained
 
     if weights:
         return mipnet.load(weights).eval()
+    if pretrained.available():
+        return pretrained.load_pretrained()
     if not quiet:
-        print("WARNING: no trained MIPNet weights are available yet: this is the UNTRAINED network "
+        print("WARNING: this installation ships no trained MIPNet weights: this is the UNTRAINED network "
               f"(random initialisation, seed {UNTRAINED_SEED}); its disparities are not meaningful. "
               "Pass --weights FILE.safetensors to use trained weights.", file=sys.stderr)
     mipnet.manual_seed(UNTRAINED_SEED)
     return mipnet.MIPNet().eval()
+
+
+def describe_weights(weights: str | None) -> list[str]:
+    """Lines saying what a weights file (default: the shipped one) was trained on."""
+    from . import pretrained
+    from .weights import load_safetensors
+
+    if weights:
+        _, meta = load_safetensors(weights)
+        label = weights
+    elif pretrained.available():
+        meta, label = pretrained.pretrained_info(), f"shipped ({pretrained.PRETRAINED_PATH.name})"
+    else:
+        return ["weights: none shipped (untrained network)"]
+    lines = [f"weights: {label}"]
+    for key in ("trained", "step", "generator_version", "mipnet_version", "commands"):
+        if key in meta:
+            lines.append(f"  {key}: {meta[key]}")
+    if "validation" in meta:
+        lines.append(f"  validation: {meta['validation']}")
+    return lines
 
 
 class Progress:
@@ -210,9 +234,9 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     if args.measure and not args.size:
         raise ArgumentError("--measure needs --size H W")
-    model = load_model(args.weights, quiet=True) if args.weights else mipnet.MIPNet()
+    model = load_model(args.weights, quiet=True)
     print(f"mipnet {mipnet.__version__}  threads={mipnet.get_num_threads()}  dtype={model.dtype}")
-    print(f"weights: {args.weights or 'none (untrained network)'}")
+    print("\n".join(describe_weights(args.weights)))
     print("config: " + ", ".join(f"{k}={v}" for k, v in vars(model.config).items()))
     counts: dict[str, int] = {}
     for name, p in model.named_parameters():
@@ -242,7 +266,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-DATASETS = ("synthetic", "synthetic-underwater", "sceneflow", "middlebury2014", "middeval3", "eth3d",
+DATASETS = ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater", "motorcycle", "sceneflow", "middlebury2014", "middeval3", "eth3d",
             "kitti2012", "kitti2015", "crestereo")
 
 
@@ -250,12 +274,15 @@ def open_dataset(args: argparse.Namespace):
     """The evaluation pairs named by ``--dataset`` (``--root`` for the on-disk sets)."""
     from . import data
 
-    if args.dataset in ("synthetic", "synthetic-underwater"):
+    if args.dataset in ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater"):
         h, w = args.size
-        preset = args.preset if args.dataset == "synthetic-underwater" else None
-        if args.dataset == "synthetic-underwater" and preset is None:
-            raise ArgumentError("--dataset synthetic-underwater needs --preset (clear, coastal, turbid, low_light)")
-        return data.SyntheticStereo(args.n, h, w, seed=args.seed, underwater=preset)
+        underwater = args.dataset.endswith("-underwater")
+        if underwater and args.preset is None:
+            raise ArgumentError(f"--dataset {args.dataset} needs --preset (clear, coastal, turbid, low_light, random)")
+        generator = data.SceneStereo if args.dataset.startswith("scenes") else data.SyntheticStereo
+        return generator(args.n, h, w, seed=args.seed, underwater=args.preset if underwater else None)
+    if args.dataset == "motorcycle":  # a real Middlebury pair bundled in scikit-image (evaluation only)
+        return data.RealPairs("motorcycle", underwater=args.preset, seed=args.seed)
     if not args.root:
         raise ArgumentError(f"--dataset {args.dataset} needs --root DIR")
     make = {
@@ -271,6 +298,7 @@ def open_dataset(args: argparse.Namespace):
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from . import pretrained
     from .evaluation import evaluate_method, format_table, result_row, sgbm_rows
 
     methods = set(args.methods.split(","))
@@ -302,12 +330,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
             progress.step("")
             return disp
 
-        rows.append(result_row("MIPNet" + ("" if args.weights else " (untrained)"),
+        trained = bool(args.weights) or pretrained.available()
+        rows.append(result_row("MIPNet" + ("" if trained else " (untrained)"),
                                evaluate_method(pairs(), predict, on_error=on_error), args.aggregation))
     if "sgbm" in methods:
         full, covered = sgbm_rows(pairs(), aggregation=args.aggregation, on_error=on_error)
         rows += [{**full, "method": "SGBM (full coverage)"}, {**covered, "method": "SGBM (covered)"}]
-    name = args.dataset + (f" ({args.preset})" if args.dataset == "synthetic-underwater" else "")
+    name = args.dataset + (f" ({args.preset})" if args.preset else "")
     print(f"{name}: {count} pairs, {args.aggregation} over images; bad-x and d1 in percent, epe/a90/rms in px")
     print(format_table(rows))
     return failures.report(count)
@@ -399,16 +428,22 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--weights", help="weights file (.safetensors written by MIPNet.save)")
     ev.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
     ev.add_argument("--methods", default="mipnet,sgbm", help="comma-separated: mipnet, sgbm")
-    ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light"), help="underwater preset")
+    ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light", "random"),
+                    help="underwater preset (random: water drawn around the presets per pair)")
     ev.add_argument("--n", type=positive_int, default=50, help="number of generated pairs (synthetic sets)")
     ev.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"), action=ImageSize,
                     help="generated pair size")
-    ev.add_argument("--seed", type=int, default=0, help="seed of the generated pairs")
+    ev.add_argument("--seed", type=int, default=1_000_000,
+                    help="pair seed of the first generated pair (default 1000000: held out from training)")
     ev.add_argument("--resolution", default="H", choices=("F", "H", "Q"), help="MiddEval3 resolution")
     ev.add_argument("--max-pairs", type=positive_int, default=None, help="evaluate only the first N pairs")
     ev.add_argument("--aggregation", default="mean", choices=("mean", "pooled"),
                     help="mean of per-image metrics (ETH3D) or pooled over all pixels (KITTI)")
     ev.set_defaults(func=cmd_eval)
+
+    from .training.cli import add_parser
+
+    add_parser(sub)
     return p
 
 

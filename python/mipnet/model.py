@@ -199,6 +199,14 @@ class MIPNet(Module):
         return Tensor(np.concatenate([-d0, np.zeros_like(d0)], axis=1).astype(dtype))
 
     # ---- weights ---------------------------------------------------------------------------------------
+    @classmethod
+    def pretrained(cls) -> "MIPNet":
+        """The eval-mode model with the weights shipped inside the package (``mipnet info`` says what
+        they were trained on; ``docs/training.md`` how)."""
+        from .pretrained import load_pretrained
+
+        return load_pretrained()
+
     def save(self, path: str, **metadata: str) -> None:
         """Writes the state dict to a safetensors file with the config in its metadata (atomic)."""
         from .weights import save_safetensors

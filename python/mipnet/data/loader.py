@@ -122,25 +122,31 @@ class DataLoader:
         self.collate_fn = collate_fn or default_collate
         self.transform = transform
         self.epoch = 0
+        self.start_batch = 0
 
     def __len__(self) -> int:
         full, rest = divmod(len(self.dataset), self.batch_size)
         return full + (1 if rest and not self.drop_last else 0)
 
-    def set_epoch(self, epoch: int) -> None:
-        """Set the epoch whose order the next ``iter()`` uses (it then advances by one)."""
+    def set_epoch(self, epoch: int, start_batch: int = 0) -> None:
+        """Set the epoch whose order the next ``iter()`` uses (it then advances by one), and the
+        batch of that epoch to start from (resuming a run mid-epoch loads nothing it skips)."""
+        if not 0 <= start_batch <= len(self):
+            raise ValueError(f"DataLoader: start_batch must be in 0..{len(self)}, got {start_batch}")
         self.epoch = int(epoch)
+        self.start_batch = int(start_batch)
 
-    def _batches(self, epoch: int) -> list[list[tuple[int, int]]]:
-        """(position, dataset index) pairs of every batch of ``epoch``."""
+    def _batches(self, epoch: int, start: int = 0) -> Iterator[list[tuple[int, int]]]:
+        """(position, dataset index) pairs of every batch of ``epoch`` from batch ``start`` on."""
         count = len(self.dataset)
         if self.shuffle:
             order = np.random.default_rng(_seed_state(self.seed, epoch)).permutation(count)
         else:
             order = np.arange(count)
-        pairs = list(enumerate(order.tolist()))
         size = self.batch_size
-        return [pairs[start:start + size] for start in range(0, len(self) * size, size)]
+        for first in range(start * size, len(self) * size, size):
+            # batch b holds positions b*size .. b*size + size - 1 (the last one may be shorter)
+            yield list(enumerate(order[first:first + size].tolist(), start=first))
 
     def _load_batch(self, epoch: int, positions_and_indices: list[tuple[int, int]]):
         samples = []
@@ -153,9 +159,9 @@ class DataLoader:
         return self.collate_fn(samples)
 
     def __iter__(self) -> Iterator:
-        epoch = self.epoch
-        self.epoch += 1
-        batches = self._batches(epoch)
+        epoch, start = self.epoch, self.start_batch
+        self.epoch, self.start_batch = epoch + 1, 0
+        batches = self._batches(epoch, start)
         if self.num_workers == 0:
             return (self._load_batch(epoch, batch) for batch in batches)
         return self._iter_workers(epoch, batches)

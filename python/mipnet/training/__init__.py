@@ -1,5 +1,17 @@
-"""Training MIPNet: ``fit`` (the loop behind ``mipnet train``), presets, augmentation, checkpoints, logs."""
+"""Training MIPNet: ``fit`` (the loop behind ``mipnet train``), presets, augmentation, checkpoints,
+logs and plots.
 
-from .legacy import TrainConfig, random_crop, train
+    from mipnet.training import fit, resolve_config
+    fit(resolve_config("cpu", overrides={"steps": 300}), "runs/cpu")
+    fit(None, "runs/cpu", resume=True, steps=600)
+"""
 
-__all__ = ["TrainConfig", "random_crop", "train"]
+from .augment import SparseStereoAugmentor, StereoAugmentor, make_augmentor
+from .checkpoint import load_latest_checkpoint
+from .config import PRESETS, TrainConfig, resolve_config
+from .data_spec import EVAL_SEED_START, Mixture, parse_spec
+from .fit import fit
+from .plot import plot
+
+__all__ = ["fit", "TrainConfig", "PRESETS", "resolve_config", "StereoAugmentor", "SparseStereoAugmentor",
+           "make_augmentor", "Mixture", "parse_spec", "EVAL_SEED_START", "load_latest_checkpoint", "plot"]

@@ -1,4 +1,5 @@
-"""Optimisers and schedules of MIPNet's recipe (spec c.2): AdamW, SGD, OneCycleLR, clip_grad_norm_.
+"""Optimisers of MIPNet's recipe (spec c.2), at torch's import paths: ``mipnet.optim.AdamW``, ``SGD``,
+``mipnet.optim.lr_scheduler.OneCycleLR`` (also here), and ``clip_grad_norm_`` (``mipnet.nn.utils``; also here).
 
 Updates replace ``p.data`` between steps (never while a kernel reads it), with torch's formulas.
 """
@@ -10,8 +11,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .errors import ArgumentError
-from .tensor import Tensor
+from ..errors import ArgumentError
 
 
 class Optimizer:
@@ -86,53 +86,8 @@ class AdamW(Optimizer):
                 p.data = (data - (g["lr"] / (1 - b1 ** t)) * st["exp_avg"] / denom).astype(p.dtype)
 
 
-class OneCycleLR:
-    """The one-cycle schedule with linear annealing and no momentum cycling, as torch's
-    ``OneCycleLR(max_lr, total_steps, pct_start, anneal_strategy='linear', cycle_momentum=False)``."""
+from . import lr_scheduler  # noqa: E402 - the schedule module needs Optimizer defined
+from .lr_scheduler import OneCycleLR  # noqa: E402
+from ..nn.utils import clip_grad_norm_  # noqa: E402
 
-    def __init__(self, optimizer: Optimizer, max_lr: float, total_steps: int, pct_start: float = 0.3,
-                 anneal_strategy: str = "linear", div_factor: float = 25.0, final_div_factor: float = 1e4,
-                 cycle_momentum: bool = False):
-        if anneal_strategy != "linear" or cycle_momentum:
-            raise ArgumentError("OneCycleLR: only anneal_strategy='linear' with cycle_momentum=False is supported")
-        if total_steps < 2:
-            raise ArgumentError(f"OneCycleLR: total_steps must be >= 2, got {total_steps}")
-        self.optimizer, self.total_steps = optimizer, total_steps
-        self.initial_lr = max_lr / div_factor
-        self.max_lr, self.min_lr = max_lr, self.initial_lr / final_div_factor
-        self.phases = [(pct_start * total_steps - 1, self.initial_lr, max_lr), (total_steps - 1, max_lr, self.min_lr)]
-        self.last_step = 0
-        self._set(self.lr_at(0))
-
-    def lr_at(self, step: int) -> float:
-        start = 0.0
-        for i, (end, lr0, lr1) in enumerate(self.phases):
-            if step <= end or i == len(self.phases) - 1:
-                # linear interpolation over the phase: lr0 + (lr1 - lr0) * (step - start) / (end - start)
-                return lr0 + (lr1 - lr0) * (step - start) / (end - start)
-            start = end
-        raise AssertionError("unreachable")
-
-    def _set(self, lr: float) -> None:
-        for g in self.optimizer.param_groups:
-            g["lr"] = lr
-
-    def step(self) -> None:
-        self.last_step += 1
-        if self.last_step >= self.total_steps:
-            raise ArgumentError(f"OneCycleLR: stepped {self.last_step} times, beyond total_steps={self.total_steps}")
-        self._set(self.lr_at(self.last_step))
-
-    def get_last_lr(self) -> list[float]:
-        return [g["lr"] for g in self.optimizer.param_groups]
-
-
-def clip_grad_norm_(parameters: Iterable[Tensor], max_norm: float) -> float:
-    """Scales all gradients so their joint L2 norm is at most ``max_norm``; returns the norm before."""
-    grads = [p.grad for p in parameters if p.grad is not None]
-    total = math.sqrt(sum(float(np.sum(g.data.astype(np.float64) ** 2)) for g in grads))
-    coef = max_norm / (total + 1e-6)
-    if coef < 1.0:
-        for g in grads:
-            g.data *= coef
-    return total
+__all__ = ["Optimizer", "SGD", "AdamW", "OneCycleLR", "lr_scheduler", "clip_grad_norm_"]

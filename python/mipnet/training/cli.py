@@ -1,0 +1,69 @@
+"""``mipnet train``: a thin command line over :func:`mipnet.training.fit`.
+
+    mipnet train --preset cpu --steps 20 --out run/
+    mipnet train --config run.toml --data scenes:0.7 kitti2015:/data/kitti:0.3 --out run/
+    mipnet train --resume run/ --steps 2000
+
+Settings resolve as preset < ``--config`` file < flags.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from .config import PRESETS, read_config_file, resolve_config
+
+# flags that map one-to-one onto TrainConfig fields
+_FIELDS = ("steps", "schedule_steps", "batch_size", "crop", "iters", "lr", "init", "seed", "val_every", "val_pairs",
+           "val_size", "val_data", "checkpoint_every", "workers", "data")
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    """Registers ``train`` on the ``mipnet`` sub-command parsers."""
+    p = sub.add_parser("train", help="train or fine-tune MIPNet (resumable; see docs/training.md)",
+                       description="Train MIPNet. Settings: preset < --config file < flags.")
+    p.add_argument("--out", help="run folder (log.jsonl, model.safetensors, checkpoint/)")
+    p.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its newest checkpoint")
+    p.add_argument("--config", help="TOML file of TrainConfig settings")
+    p.add_argument("--preset", choices=sorted(PRESETS), help="named settings (paper-stage1, paper-stage2, cpu, finetune)")
+    p.add_argument("--data", nargs="+", metavar="SPEC", help="NAME[:ROOT][:WEIGHT] ... (e.g. scenes:0.7 kitti2015:/data/kitti:0.3)")
+    p.add_argument("--steps", type=int, help="train until this step")
+    p.add_argument("--schedule-steps", type=int, help="one-cycle length (default: --steps of the first start)")
+    p.add_argument("--batch-size", type=int)
+    p.add_argument("--crop", type=int, nargs=2, metavar=("H", "W"))
+    p.add_argument("--iters", type=int, nargs=2, metavar=("N16", "N4"), help="IPM iterations per level while training")
+    p.add_argument("--lr", type=float, help="max learning rate of the one-cycle schedule")
+    p.add_argument("--init", metavar="WEIGHTS", help="start from these weights (.safetensors)")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--val-every", type=int, help="validate every K steps (0: never)")
+    p.add_argument("--val-pairs", type=int, help="held-out generated pairs per validation set")
+    p.add_argument("--val-size", type=int, nargs=2, metavar=("H", "W"))
+    p.add_argument("--val-data", metavar="SPEC", help="also validate on this dataset spec")
+    p.add_argument("--checkpoint-every", type=int)
+    p.add_argument("--workers", type=int, help="data-loading worker processes")
+    p.add_argument("--no-augment", dest="augment", action="store_false", default=None, help="crop only")
+    p.add_argument("--freeze-bn", dest="freeze_bn", action="store_true", default=None)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import ArgumentError
+    from .fit import fit
+
+    if args.resume:
+        given = [f"--{f.replace('_', '-')}" for f in _FIELDS + ("augment", "freeze_bn", "config", "preset", "out")
+                 if getattr(args, f, None) is not None and f not in ("steps", "workers", "val_every", "checkpoint_every")]
+        if given:
+            raise ArgumentError(f"mipnet train --resume: {', '.join(given)} cannot change in a resumed run")
+        overrides = {"workers": args.workers, "val_every": args.val_every, "checkpoint_every": args.checkpoint_every}
+        fit(None, args.resume, resume=True, steps=args.steps, progress=not args.quiet, overrides=overrides)
+        return 0
+    if not args.out:
+        raise ArgumentError("mipnet train: give --out DIR (a new run) or --resume DIR")
+    file_settings = read_config_file(args.config) if args.config else {}
+    flags = {f: getattr(args, f) for f in _FIELDS + ("augment", "freeze_bn")}
+    config = resolve_config(args.preset, file_settings, flags)
+    fit(config, args.out, progress=not args.quiet)
+    return 0

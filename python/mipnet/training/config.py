@@ -1,0 +1,177 @@
+"""Training configuration: ``TrainConfig``, the named presets, and how a run's settings are resolved
+(preset < config file < command-line flags).
+
+Why the ``cpu`` preset is what it is (measured with the engine of mipnet 0.1 on a 2-core Intel Xeon,
+2 threads, MIPNet() from scratch): one optimisation step at 128x256, batch 4, takes 8.5 s with
+(3, 3) training iterations and 16 s with (6, 6); at 384x512 batch 2 it takes 54 s. Matching begins to
+emerge only after a few hundred steps, so the CPU budget buys far more learning as many small, cheap
+steps: 128x256 crops, batch 4 (enough pixels for BatchNorm in the iAFF blocks and a stable loss),
+(3, 3) iterations during training (the RAFT habit of training with fewer iterations than inference
+uses), max LR 4e-4 with the paper's one-cycle schedule (AdamW, wd 1e-5, clip 1.0).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from typing import Any, Mapping
+
+from ..errors import ArgumentError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10: the same parser as a package
+    import tomli as tomllib
+
+# Procedural training data, used when no --data is given: mostly the natural-statistics scenes
+# (in air and under randomised water), some of the simple planar scenes.
+DEFAULT_DATA = ("scenes:0.55", "scenes-underwater:0.3", "synthetic:0.1", "synthetic-underwater:0.05")
+
+
+@dataclasses.dataclass
+class TrainConfig:
+    """Every setting of a training run. Defaults are the paper's first pre-training stage.
+
+    Attributes
+    ----------
+    steps : int
+        Train until this optimisation step.
+    schedule_steps : int or None
+        Length of the one-cycle schedule (its ``total_steps`` is this + 100, as RAFT-Stereo);
+        None: ``steps`` of the run's first start. Fixed for the life of a run, so a resumed run
+        continues the same schedule.
+    batch_size, crop, iters :
+        Pairs per step, crop (H, W) after augmentation, (1/16, 1/4) IPM iterations in training.
+    lr, weight_decay, pct_start, clip, gamma, max_disp :
+        AdamW max LR and decay, one-cycle warm-up fraction, gradient-norm clip, sequence-loss
+        weight decay and the ground-truth magnitude limit (spec c.1, c.2).
+    freeze_bn : bool
+        Keep BatchNorm in eval mode (fine-tuning).
+    augment : bool
+        Spec c.3 augmentation (photometric, eraser, scale/stretch, y-jitter); False: crop only.
+    data : list of str
+        Data specs (see :mod:`mipnet.training.data_spec`), e.g. ``["scenes:0.7", "kitti2015:/data/kitti:0.3"]``.
+    init : str or None
+        Weights (``.safetensors``) to start from instead of random initialisation.
+    seed : int
+        Seed of the initialisation, the data order, the augmentation and the gamma draws.
+    val_every, val_pairs, val_size, val_iters, val_data :
+        Validate every ``val_every`` steps (0: never) on ``val_pairs`` held-out generated pairs of
+        size ``val_size`` per set, at ``val_iters`` iterations; ``val_data`` optionally names a
+        dataset spec to validate on as well.
+    checkpoint_every : int
+        Write the resumable checkpoint every this many steps (and always at the end and on SIGTERM).
+    workers : int
+        Data-loading worker processes (0: load in the training process).
+    """
+
+    steps: int = 100_000
+    schedule_steps: int | None = None
+    batch_size: int = 8
+    crop: tuple[int, int] = (384, 512)
+    iters: tuple[int, int] = (6, 6)
+    lr: float = 6e-4
+    weight_decay: float = 1e-5
+    pct_start: float = 0.01
+    clip: float = 1.0
+    gamma: float = 0.8
+    max_disp: float = 700.0
+    freeze_bn: bool = False
+    augment: bool = True
+    data: list[str] = dataclasses.field(default_factory=lambda: list(DEFAULT_DATA))
+    init: str | None = None
+    seed: int = 1234
+    val_every: int = 1000
+    val_pairs: int = 8
+    val_size: tuple[int, int] = (256, 320)
+    val_iters: tuple[int, int] = (6, 6)
+    val_data: str | None = None
+    checkpoint_every: int = 100
+    workers: int = 0
+
+    def __post_init__(self) -> None:
+        self.crop = _pair(self.crop, "crop")
+        self.iters = _pair(self.iters, "iters")
+        self.val_size = _pair(self.val_size, "val_size")
+        self.val_iters = _pair(self.val_iters, "val_iters")
+        self.data = [self.data] if isinstance(self.data, str) else list(self.data)
+        positive = {"steps": self.steps, "batch_size": self.batch_size, "lr": self.lr, "checkpoint_every": self.checkpoint_every}
+        for name, value in positive.items():
+            if not value > 0:
+                raise ArgumentError(f"TrainConfig: {name} must be positive, got {value}")
+        if self.schedule_steps is not None and self.schedule_steps < 1:
+            raise ArgumentError(f"TrainConfig: schedule_steps must be positive, got {self.schedule_steps}")
+        if min(self.crop) < 32 or self.crop[0] % 16 or self.crop[1] % 16:
+            raise ArgumentError(f"TrainConfig: crop must be multiples of 16 and >= 32, got {list(self.crop)}")
+        if self.iters[0] < 1 or self.iters[1] < 0:
+            raise ArgumentError(f"TrainConfig: iters needs N16 >= 1 and N4 >= 0, got {list(self.iters)}")
+        if self.val_every < 0 or self.val_pairs < 0 or self.workers < 0:
+            raise ArgumentError("TrainConfig: val_every, val_pairs and workers must be >= 0")
+        if not self.data:
+            raise ArgumentError("TrainConfig: data needs at least one spec")
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "TrainConfig":
+        return cls(**json.loads(text))
+
+
+def _pair(value: Any, name: str) -> tuple[int, int]:
+    try:
+        a, b = value
+        return int(a), int(b)
+    except (TypeError, ValueError):
+        raise ArgumentError(f"TrainConfig: {name} must be two integers, got {value!r}") from None
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # Paper §4.4, stage 1: 100k steps, batch 8, 384x512, max LR 6e-4 (CREStereo data there).
+    "paper-stage1": dict(steps=100_000, batch_size=8, crop=(384, 512), iters=(6, 6), lr=6e-4),
+    # Stage 2: from stage 1 (--init), a new one-cycle, batch 4, 384x768, 2e-4.
+    "paper-stage2": dict(steps=100_000, batch_size=4, crop=(384, 768), iters=(6, 6), lr=2e-4),
+    # A 2-core CPU (see the module docstring for the measurements behind it).
+    "cpu": dict(steps=20_000, batch_size=4, crop=(128, 256), iters=(3, 3), lr=4e-4, val_every=250, val_pairs=8,
+                val_size=(256, 320), checkpoint_every=50, workers=1),
+    # Fine-tuning on the user's data: from --init, low LR, BatchNorm frozen, a short schedule.
+    "finetune": dict(steps=2_000, batch_size=2, crop=(256, 512), iters=(6, 6), lr=1e-4, freeze_bn=True,
+                     val_every=250, checkpoint_every=100),
+}
+
+
+def read_config_file(path: str) -> dict[str, Any]:
+    """The settings of a TOML run file (keys are ``TrainConfig`` fields; ``preset = "cpu"`` allowed)."""
+    try:
+        with open(path, "rb") as f:
+            settings = tomllib.load(f)
+    except OSError as e:
+        raise ArgumentError(f"mipnet train: cannot read config file {path}: {e.strerror}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ArgumentError(f"mipnet train: {path} is not valid TOML: {e}") from None
+    return settings
+
+
+def resolve_config(preset: str | None = None, file_settings: Mapping[str, Any] | None = None,
+                   overrides: Mapping[str, Any] | None = None) -> TrainConfig:
+    """``TrainConfig`` from a preset, then a config file's settings, then explicit overrides (None
+    values in ``overrides`` mean "not given")."""
+    file_settings = dict(file_settings or {})
+    preset = preset or file_settings.pop("preset", None)
+    file_settings.pop("preset", None)
+    if preset is not None and preset not in PRESETS:
+        raise ArgumentError(f"mipnet train: unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+    settings = dict(PRESETS.get(preset, {}))
+    settings.update(file_settings)
+    settings.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(settings) - known)
+    if unknown:
+        raise ArgumentError(f"mipnet train: unknown setting(s) {unknown}; valid: {sorted(known)}")
+    if preset == "finetune" and not settings.get("init"):
+        raise ArgumentError("mipnet train: the finetune preset needs --init WEIGHTS.safetensors")
+    try:
+        return TrainConfig(**settings)
+    except TypeError as e:
+        raise ArgumentError(f"mipnet train: bad setting: {e}") from None

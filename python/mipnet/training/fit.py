@@ -1,0 +1,265 @@
+"""``fit``: the training loop behind ``mipnet train`` (spec c.1–c.3), with exact resume.
+
+A run lives in one folder::
+
+    RUN/log.jsonl             one JSON object per step and per validation
+    RUN/model.safetensors     the latest weights (``mipnet.load``)
+    RUN/best.safetensors      the weights of the best validation so far (mean EPE over the generated sets)
+    RUN/config.json           the resolved TrainConfig
+    RUN/checkpoint/           the resumable state (see :mod:`mipnet.training.checkpoint`)
+
+``fit(config, RUN)`` starts a run; ``fit(None, RUN, resume=True, steps=N)`` continues it to step N
+exactly as if it had never stopped: same data order, augmentation, gamma draws, optimiser state and
+schedule, so the losses and weights are bitwise those of an uninterrupted run. SIGINT and SIGTERM end
+the current step, write a checkpoint and return.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import signal
+import sys
+import time
+from typing import Iterator
+
+import numpy as np
+
+from .._core import __version__
+from .._fileutil import atomic_write
+from ..data.loader import DataLoader
+from ..errors import ArgumentError
+from ..losses import sequence_loss, sequence_metrics
+from ..model import MIPNet, load
+from ..optim import AdamW, OneCycleLR, clip_grad_norm_
+from ..random import default_generator, manual_seed
+from .augment import make_augmentor
+from .checkpoint import TrainState, list_checkpoints, load_latest_checkpoint, save_checkpoint
+from .config import TrainConfig
+from .data_spec import EVAL_SEED_START, Mixture, is_sparse, open_spec, parse_spec
+from .log import TrainLog
+from .validation import format_validation, mean_epe, validate_model, validate_sgbm, validation_sets
+
+# Generated training pairs are drawn this much larger than the crop, so scale augmentation can
+# shrink them (2**-0.2 = 0.87) and crops land at varied positions.
+GENERATED_MARGIN = 1.25
+
+
+def _generated_size(crop: tuple[int, int]) -> tuple[int, int]:
+    """Size of generated training pairs for a crop: crop * margin, rounded up to a multiple of 8."""
+    return tuple(int(math.ceil(c * GENERATED_MARGIN / 8) * 8) for c in crop)  # type: ignore[return-value]
+
+
+def build_dataset(config: TrainConfig) -> tuple[Mixture, list]:
+    """The training mixture of ``config.data`` and one augmentor per source (dense or sparse)."""
+    specs = [parse_spec(text) for text in config.data]
+    size = _generated_size(config.crop)
+    sources = [open_spec(spec, size, seed=0, count=EVAL_SEED_START) for spec in specs]
+    augmentors = [make_augmentor(config.crop, sparse=is_sparse(spec), augment=config.augment) for spec in specs]
+    return Mixture(sources, [s.weight for s in specs], EVAL_SEED_START, seed=config.seed), augmentors
+
+
+def _transform(augmentors: list):
+    def transform(sample: dict, rng: np.random.Generator) -> dict:
+        out = augmentors[sample["source"]](sample, rng)
+        return {k: out[k] for k in ("left", "right", "disparity", "valid")}
+
+    return transform
+
+
+class _StopRequest:
+    """SIGINT/SIGTERM set a flag; the loop checkpoints after the current step and returns."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator["_StopRequest"]:
+        if threading_is_main():
+            previous = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
+        else:
+            previous = {}
+        try:
+            yield self
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+    def _handle(self, signum, frame) -> None:
+        if self.signal is not None:  # a second signal: stop now
+            raise KeyboardInterrupt
+        self.signal = signum
+        print(f"\nmipnet train: {signal.Signals(signum).name} received: checkpointing after this step", file=sys.stderr)
+
+
+def threading_is_main() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _save_json(path: str, obj) -> None:
+    with atomic_write(path, "w") as f:
+        json.dump(obj, f, indent=2, sort_keys=True)
+
+
+def _weights_metadata(config: TrainConfig, step: int, **extra) -> dict:
+    from ..data import scenes
+
+    return {"step": str(step), "train_config": config.to_json(), "mipnet_version": __version__,
+            "generator_version": str(getattr(scenes, "GENERATOR_VERSION", "")),
+            **{k: v if isinstance(v, str) else json.dumps(v) for k, v in extra.items()}}
+
+
+def _new_model(config: TrainConfig) -> MIPNet:
+    manual_seed(config.seed)
+    if config.init:
+        if not os.path.isfile(config.init):
+            raise ArgumentError(f"mipnet train: --init {config.init}: no such file")
+        return load(config.init)
+    return MIPNet()
+
+
+def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: int | None = None,
+        progress: bool = True, overrides: dict | None = None) -> list[dict]:
+    """Trains MIPNet and returns the step records of this call.
+
+    Parameters
+    ----------
+    config : TrainConfig or None
+        The run's settings (None with ``resume``: the checkpoint's).
+    out : str
+        The run folder.
+    resume : bool
+        Continue the run in ``out`` from its newest readable checkpoint.
+    steps : int, optional
+        Train until this step (default: ``config.steps``).
+    progress : bool
+        Show a tqdm progress bar on stderr.
+    overrides : dict, optional
+        With ``resume``: settings that may change between sessions without changing results
+        (``workers``, ``val_every``, ``checkpoint_every``).
+    """
+    os.makedirs(out, exist_ok=True)
+    state: TrainState | None = None
+    if resume:
+        state = load_latest_checkpoint(out)
+        config = TrainConfig.from_json(state.config_json)
+        allowed = {"workers", "val_every", "checkpoint_every"}
+        bad = sorted(set(overrides or {}) - allowed)
+        if bad:
+            raise ArgumentError(f"mipnet train --resume: {bad} cannot change in a resumed run (only {sorted(allowed)})")
+        config = dataclasses.replace(config, **{k: v for k, v in (overrides or {}).items() if v is not None})
+    elif config is None:
+        raise ArgumentError("fit: needs a TrainConfig unless resume=True")
+    elif list_checkpoints(out):
+        raise ArgumentError(f"mipnet train: {out} already holds a run; continue it with --resume {out} or choose another --out")
+    target = int(steps if steps is not None else config.steps)
+    if config.schedule_steps is None:  # the schedule spans the run's planned length, whatever a call stops at
+        config = dataclasses.replace(config, schedule_steps=config.steps)
+    if target + 1 > config.schedule_steps + 100:
+        raise ArgumentError(f"mipnet train: the one-cycle schedule of this run ends at step {config.schedule_steps + 100}; "
+                            f"start a new stage with --init {os.path.join(out, 'model.safetensors')} to train to {target}")
+
+    model = _new_model(config) if state is None else MIPNet(**json.loads(state.model_config))
+    optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay, eps=1e-8)
+    schedule = OneCycleLR(optimizer, config.lr, config.schedule_steps + 100, pct_start=config.pct_start)
+    dataset, augmentors = build_dataset(config)
+    loader = DataLoader(dataset, batch_size=config.batch_size, shuffle=True, drop_last=True,
+                        num_workers=config.workers, seed=config.seed, transform=_transform(augmentors))
+    log = TrainLog(os.path.join(out, "log.jsonl"))
+    step, epoch, batch = 0, 0, 0
+    if state is not None:
+        model.load_state_dict(state.model)
+        optimizer.load_state_dict(state.optimizer)
+        schedule.load_state_dict(state.schedule)
+        default_generator().bit_generator.state = state.rng_state
+        step, epoch, batch = state.step, state.epoch, state.batch
+        log.truncate_after(step)
+    else:
+        log.truncate_after(0)
+    _save_json(os.path.join(out, "config.json"), dataclasses.asdict(config))
+    loader.set_epoch(epoch, batch)
+
+    model.train()
+    if config.freeze_bn:
+        model.freeze_bn()
+    val_sets = validation_sets(config.val_size, config.val_pairs, config.val_data) if config.val_every and config.val_pairs else None
+    previous = log.records()
+    best = min((mean_epe(r["val"]) for r in previous if "val" in r), default=math.inf)
+    sgbm_logged = any("val_sgbm" in r for r in previous)
+
+    def checkpoint() -> None:
+        save_checkpoint(out, TrainState(step=step, epoch=epoch, batch=batch, model=model.state_dict(),
+                                        optimizer=optimizer.state_dict(), schedule=schedule.state_dict(),
+                                        rng_state=default_generator().bit_generator.state, config_json=config.to_json(),
+                                        model_config=model.config.to_json()))
+        model.save(os.path.join(out, "model.safetensors"), **_weights_metadata(config, step))
+
+    def validate() -> None:
+        nonlocal best, sgbm_logged
+        model.eval()
+        table = validate_model(lambda l, r: model(l, r, iters=config.val_iters), val_sets)
+        model.train()
+        reference = None
+        if not sgbm_logged:
+            reference = validate_sgbm(val_sets)
+            if reference is not None:
+                log.append({"step": step, "val_sgbm": reference})
+            sgbm_logged = True
+        log.append({"step": step, "val": table})
+        print("\n" + format_validation(step, table, reference), file=sys.stderr)
+        score = mean_epe(table)
+        if score < best:
+            best = score
+            model.save(os.path.join(out, "best.safetensors"), **_weights_metadata(config, step, validation=table))
+
+    from tqdm.auto import tqdm
+
+    records: list[dict] = []
+    stop = _StopRequest()
+    bar = tqdm(total=target, initial=step, desc="train", unit="step", disable=not progress, file=sys.stderr,
+               mininterval=1.0 if sys.stderr.isatty() else 30.0, dynamic_ncols=True)
+    with stop.installed(), bar:
+        batches = iter(loader)
+        while step < target and stop.signal is None:
+            t_data = time.perf_counter()
+            sample = next(batches, None)
+            if sample is None:  # end of an epoch: the loader has moved on to the next one
+                epoch, batch = epoch + 1, 0
+                batches = iter(loader)
+                continue
+            t0 = time.perf_counter()
+            left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
+            preds = model(left, right, iters=config.iters)
+            loss = sequence_loss(preds, sample["disparity"], sample["valid"], gamma=config.gamma, max_disp=config.max_disp)
+            optimizer.zero_grad()
+            loss.backward()
+            grad_norm = clip_grad_norm_(model.parameters(), config.clip)
+            lr = optimizer.param_groups[0]["lr"]
+            optimizer.step()
+            schedule.step()
+            step, batch = step + 1, batch + 1
+            record = {"step": step, "loss": loss.item(), "lr": lr, "grad_norm": grad_norm,
+                      **sequence_metrics(preds[-1], sample["disparity"], sample["valid"], config.max_disp),
+                      "seconds": time.perf_counter() - t0, "data_seconds": t0 - t_data}
+            del preds, loss
+            if not math.isfinite(record["loss"]):
+                raise FloatingPointError(f"mipnet train: loss became {record['loss']} at step {step}; "
+                                         f"the last checkpoint in {out}/checkpoint is from before")
+            log.append(record)
+            records.append(record)
+            bar.set_postfix(loss=f"{record['loss']:.3f}", epe=f"{record['epe']:.2f}", refresh=False)
+            bar.update(1)
+            if step % config.checkpoint_every == 0:
+                checkpoint()
+            if val_sets is not None and step % config.val_every == 0:
+                validate()
+    checkpoint()
+    if stop.signal is not None:
+        print(f"mipnet train: stopped at step {step}; continue with: mipnet train --resume {out}", file=sys.stderr)
+    return records
+

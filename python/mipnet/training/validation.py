@@ -1,0 +1,72 @@
+"""Validation during training: held-out generated pairs (pair seeds from 1,000,000 on, never used
+for training) in air, turbid and low light, the natural-statistics scenes, and optionally a named
+dataset; EPE and bad-1/2/3 pooled over valid pixels, with OpenCV SGBM on the same pairs as a
+reference line."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..evaluation import evaluate_method, sgbm_rows
+from .data_spec import EVAL_SEED_START, open_spec, parse_spec
+
+METRICS = ("epe", "bad1", "bad2", "bad3")
+
+
+def validation_sets(size: tuple[int, int], pairs: int, extra: str | None = None) -> dict:
+    """name -> dataset: ``air`` (make_pair), ``turbid``, ``low_light`` (make_pair under those
+    presets), ``scenes`` (natural-statistics scenes), and ``extra`` (a data spec) if given."""
+    from .. import data
+
+    h, w = size
+    sets = {
+        "air": data.SyntheticStereo(pairs, h, w, seed=EVAL_SEED_START),
+        "turbid": data.SyntheticStereo(pairs, h, w, seed=EVAL_SEED_START, underwater="turbid"),
+        "low_light": data.SyntheticStereo(pairs, h, w, seed=EVAL_SEED_START, underwater="low_light"),
+        "scenes": data.SceneStereo(pairs, h, w, seed=EVAL_SEED_START),
+    }
+    if extra:
+        spec = parse_spec(extra)
+        ds = open_spec(spec, size, EVAL_SEED_START, pairs)
+        sets[spec.name] = [ds[i] for i in range(min(pairs, len(ds)))]
+    return sets
+
+
+def _summary(result: dict) -> dict:
+    pooled = result["pooled"]
+    return {k: float(pooled[k]) for k in METRICS}
+
+
+def validate_model(predict: Callable, sets: dict) -> dict:
+    """set name -> {epe, bad1, bad2, bad3} of ``predict(left, right) -> disparity``."""
+    return {name: _summary(evaluate_method(iter(ds), predict)) for name, ds in sets.items()}
+
+
+def validate_sgbm(sets: dict) -> dict | None:
+    """The same table for OpenCV SGBM (full coverage: holes count as 0); None without OpenCV."""
+    try:
+        import cv2  # noqa: F401
+    except ImportError:
+        return None
+    out = {}
+    for name, ds in sets.items():
+        full, _ = sgbm_rows(iter(ds), aggregation="pooled")
+        out[name] = {k: float(full[k]) for k in METRICS}
+    return out
+
+
+def format_validation(step: int, table: dict, reference: dict | None = None) -> str:
+    """One line per set: mipnet's metrics (and SGBM's in brackets)."""
+    lines = [f"validation at step {step}:"]
+    for name, m in table.items():
+        ref = reference.get(name) if reference else None
+        cells = [f"{k} {m[k]:.3f}" + (f" [sgbm {ref[k]:.3f}]" if ref else "") for k in METRICS]
+        lines.append(f"  {name:<10} " + "  ".join(cells))
+    return "\n".join(lines)
+
+
+def mean_epe(table: dict) -> float:
+    """The mean EPE over the generated sets: the number a run's best model is chosen by."""
+    return float(np.mean([table[k]["epe"] for k in ("air", "turbid", "low_light", "scenes") if k in table]))

@@ -1,0 +1,212 @@
+"""``mipnet train`` / ``mipnet.training.fit``: a short run, exact resume, SIGTERM, damaged checkpoints,
+configuration resolution, data specs."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import mipnet
+import mipnet.cli
+from mipnet.errors import ArgumentError, FormatError
+from mipnet.training import fit, resolve_config
+from mipnet.training.checkpoint import list_checkpoints, load_latest_checkpoint
+from mipnet.training.data_spec import Mixture, parse_spec
+from mipnet.training.log import TrainLog
+
+TINY = ["--crop", "64", "96", "--batch-size", "2", "--iters", "1", "1", "--val-every", "0", "--workers", "0",
+        "--data", "scenes:0.5", "synthetic:0.5", "--quiet"]
+
+
+def _tiny_config(**kw):
+    settings = dict(crop=(64, 96), batch_size=2, iters=(1, 1), val_every=0, workers=0, steps=6, checkpoint_every=100,
+                    data=["scenes:0.5", "synthetic-underwater:0.5"])
+    settings.update(kw)
+    return resolve_config("cpu", overrides=settings)
+
+
+def _losses(run: str) -> list[float]:
+    return [r["loss"] for r in TrainLog(os.path.join(run, "log.jsonl")).records() if "loss" in r]
+
+
+def _weights(run: str) -> dict:
+    return mipnet.load(os.path.join(run, "model.safetensors")).state_dict()
+
+
+def test_cli_two_steps_writes_log_weights_checkpoint(tmp_path):
+    run = str(tmp_path / "run")
+    assert mipnet.cli.main(["train", "--preset", "cpu", "--steps", "2", "--out", run] + TINY) == 0
+    records = TrainLog(os.path.join(run, "log.jsonl")).records()
+    assert [r["step"] for r in records] == [1, 2]
+    for r in records:
+        assert {"step", "loss", "lr", "epe", "seconds"} <= set(r)
+        assert np.isfinite(r["loss"]) and r["loss"] > 0 and r["seconds"] > 0
+    model = mipnet.load(os.path.join(run, "model.safetensors"))
+    assert model.num_parameters() == mipnet.MIPNet().num_parameters()
+    assert load_latest_checkpoint(run).step == 2
+    config = json.load(open(os.path.join(run, "config.json")))
+    assert config["crop"] == [64, 96] and config["iters"] == [1, 1] and config["lr"] == 4e-4  # cpu preset's LR
+
+
+def test_resume_is_bitwise_identical(tmp_path):
+    straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
+    fit(_tiny_config(steps=6), straight, progress=False)
+    fit(_tiny_config(steps=3, schedule_steps=6), split, progress=False)
+    assert load_latest_checkpoint(split).step == 3
+    fit(None, split, resume=True, steps=6, progress=False)
+    assert _losses(straight) == _losses(split)
+    assert len(_losses(split)) == 6
+    a, b = _weights(straight), _weights(split)
+    assert list(a) == list(b)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_damaged_checkpoint_falls_back_to_previous(tmp_path, capsys):
+    run = str(tmp_path / "run")
+    fit(_tiny_config(steps=4, checkpoint_every=2), run, progress=False)
+    newest, older = list_checkpoints(run)
+    with open(newest, "r+b") as f:  # flip bytes inside the tensor data: the digest no longer matches
+        f.seek(os.path.getsize(newest) - 100)
+        f.write(b"\xff" * 8)
+    assert load_latest_checkpoint(run).step == 2
+    assert "digest mismatch" in capsys.readouterr().err
+    with open(older, "wb") as f:
+        f.write(b"\x00" * 5)
+    with pytest.raises(FormatError, match="every checkpoint is unreadable"):
+        load_latest_checkpoint(run)
+
+
+def test_resume_after_a_damaged_newest_checkpoint_redoes_its_steps(tmp_path):
+    straight, run = str(tmp_path / "straight"), str(tmp_path / "run")
+    fit(_tiny_config(steps=4), straight, progress=False)
+    fit(_tiny_config(steps=4, checkpoint_every=2), run, progress=False)
+    with open(list_checkpoints(run)[0], "wb") as f:
+        f.write(b"truncated")
+    fit(None, run, resume=True, steps=4, progress=False)
+    assert _losses(run) == _losses(straight)
+
+
+def test_sigterm_checkpoints_and_resumes(tmp_path):
+    run, straight = str(tmp_path / "run"), str(tmp_path / "straight")
+    args = [sys.executable, "-m", "mipnet", "train", "--preset", "cpu", "--steps", "200", "--out", run] + TINY
+    proc = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, env={**os.environ, "MIPNET_NUM_THREADS": "1"})
+    log = os.path.join(run, "log.jsonl")
+    deadline = time.time() + 240
+    while time.time() < deadline and (not os.path.exists(log) or len(TrainLog(log).records()) < 2):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=240)
+    assert proc.returncode == 0, err
+    assert "SIGTERM received" in err and "--resume" in err
+    stopped = load_latest_checkpoint(run).step
+    assert 2 <= stopped < 200 and len(_losses(run)) == stopped
+    assert mipnet.cli.main(["train", "--resume", run, "--steps", str(stopped + 1), "--quiet"]) == 0
+    fit(resolve_config("cpu", overrides=dict(steps=200, crop=(64, 96), batch_size=2, iters=(1, 1), val_every=0,
+                                             workers=0, data=["scenes:0.5", "synthetic:0.5"])),
+        straight, steps=stopped + 1, progress=False)
+    assert _losses(run) == _losses(straight)
+
+
+def test_validation_records_and_best_weights(tmp_path):
+    run = str(tmp_path / "run")
+    fit(_tiny_config(steps=2, val_every=2, val_pairs=1, val_size=(64, 96), val_iters=(1, 1)), run, progress=False)
+    vals = [r for r in TrainLog(os.path.join(run, "log.jsonl")).records() if "val" in r]
+    assert len(vals) == 1 and vals[0]["step"] == 2
+    assert set(vals[0]["val"]) == {"air", "turbid", "low_light", "scenes"}
+    for metrics in vals[0]["val"].values():
+        assert metrics["epe"] > 0 and 0 <= metrics["bad3"] <= 100
+    assert os.path.isfile(os.path.join(run, "best.safetensors"))
+    path = mipnet.training.plot(run)
+    assert os.path.getsize(path) > 1000
+
+
+def test_workers_give_the_same_losses(tmp_path):
+    a, b = str(tmp_path / "a"), str(tmp_path / "b")
+    fit(_tiny_config(steps=2, workers=0), a, progress=False)
+    fit(_tiny_config(steps=2, workers=1), b, progress=False)
+    assert _losses(a) == _losses(b)
+
+
+def test_config_precedence_preset_file_flags(tmp_path):
+    toml = tmp_path / "run.toml"
+    toml.write_text('preset = "cpu"\nbatch_size = 3\nlr = 1e-4\ndata = ["synthetic"]\n')
+    from mipnet.training.config import read_config_file
+
+    config = resolve_config(None, read_config_file(str(toml)), {"lr": 2e-4, "steps": None})
+    assert config.crop == (128, 256)  # from the preset
+    assert config.batch_size == 3  # the file over the preset
+    assert config.lr == 2e-4  # the flag over the file
+    assert config.data == ["synthetic"]
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"bogus": 1}, "unknown setting"),
+    ({"crop": (50, 96)}, "multiples of 16"),
+    ({"steps": 0}, "steps must be positive"),
+])
+def test_bad_settings_raise(settings, message):
+    with pytest.raises(ArgumentError, match=message):
+        resolve_config("cpu", overrides=settings)
+
+
+def test_bad_config_file_and_presets(tmp_path):
+    from mipnet.training.config import read_config_file
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("steps = [")
+    with pytest.raises(ArgumentError, match="not valid TOML"):
+        read_config_file(str(bad))
+    with pytest.raises(ArgumentError, match="unknown preset"):
+        resolve_config("fast")
+    with pytest.raises(ArgumentError, match="needs --init"):
+        resolve_config("finetune")
+
+
+def test_existing_run_needs_resume(tmp_path):
+    run = str(tmp_path / "run")
+    fit(_tiny_config(steps=1), run, progress=False)
+    with pytest.raises(ArgumentError, match="already holds a run"):
+        fit(_tiny_config(steps=1), run, progress=False)
+    with pytest.raises(ArgumentError, match="cannot change"):
+        fit(None, run, resume=True, steps=2, progress=False, overrides={"lr": 1.0})
+    with pytest.raises(ArgumentError, match="schedule of this run ends"):
+        fit(None, run, resume=True, steps=10_000, progress=False)
+
+
+def test_data_specs():
+    assert parse_spec("scenes") == parse_spec("scenes:1")
+    assert parse_spec("synthetic:0.25").weight == 0.25
+    kitti = parse_spec("kitti2015:/data/kitti:0.3")
+    assert (kitti.name, kitti.root, kitti.weight) == ("kitti2015", "/data/kitti", 0.3)
+    assert parse_spec("folder:/my/pairs").root == "/my/pairs"
+    for text, message in [("nosuch", "unknown dataset"), ("kitti2015", "needs a root"), ("scenes:/x", "takes no root"),
+                          ("synthetic:-1", "positive")]:
+        with pytest.raises(ArgumentError, match=message):
+            parse_spec(text)
+
+
+def test_mixture_follows_weights_and_is_deterministic():
+    class Numbers(mipnet.data.Dataset):
+        def __init__(self, tag, n):
+            self.tag, self.n = tag, n
+
+        def __len__(self):
+            return self.n
+
+        def __getitem__(self, i):
+            return {"tag": self.tag, "i": i}
+
+    mix = Mixture([Numbers("a", 10), Numbers("b", 3)], [0.8, 0.2], 5000, seed=7)
+    tags = [mix[i]["tag"] for i in range(5000)]
+    assert abs(tags.count("a") / 5000 - 0.8) < 0.03
+    assert [mix[i] for i in range(50)] == [Mixture([Numbers("a", 10), Numbers("b", 3)], [0.8, 0.2], 5000, seed=7)[i]
+                                           for i in range(50)]
+    assert all(0 <= mix[i]["i"] < (10 if mix[i]["tag"] == "a" else 3) for i in range(200))
