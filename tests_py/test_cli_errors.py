@@ -81,6 +81,9 @@ CASES = {
                            ["--methods 'sgbm,magic'"]),
     "eval too small": (lambda f: ["eval", "--dataset", "synthetic", "--size", "16", "16"], "eval", ["16x16", "32x32"]),
     "info too small": (lambda f: ["info", "--size", "8", "1000"], "info", ["8x1000"]),
+    "train without --out": (lambda f: ["train"], "train", ["--out DIR"]),
+    "train bad config": (lambda f: ["train", "--out", f / "run", "--config", f / "bad_calib.txt"], "train",
+                         ["bad_calib.txt", "TOML"]),
 }
 
 

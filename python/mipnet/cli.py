@@ -467,7 +467,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except USER_ERRORS as error:
         if debug:
             traceback.print_exc()
-        print(f"mipnet {args.command}: error: {describe(error)}", file=sys.stderr)
+        prefix = f"mipnet {args.command}: "
+        message = describe(error)
+        # messages that already name the command (raised for the command line) are not prefixed twice
+        print(prefix + "error: " + (message[len(prefix):] if message.startswith(prefix) else message), file=sys.stderr)
         return EXIT_USAGE
 
 
