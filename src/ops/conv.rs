@@ -21,7 +21,7 @@
 //!   partial, and the partials are added in group order;
 //! - db: per output channel, Σ over images and pixels in order.
 
-use crate::gemm::gemm;
+use crate::gemm::{self, gemm_ex, Epilogue, Init, PackB, Plan, Prepacked, SourceA, Strided};
 use crate::tensor::{check_nonempty, fixed};
 use crate::{Error, Float, Result};
 use ndarray::{s, Array1, Array2, Array3, Array4, ArrayView, ArrayView2, ArrayViewD, ArrayViewMut2, Axis, CowArray, Dimension, Ix1, Ix4};
@@ -34,8 +34,6 @@ use std::thread::LocalKey;
 const OP: &str = "conv2d";
 /// Upper bound of one thread's im2col / col2im buffer.
 const SCRATCH_BYTES: usize = 4 << 20;
-/// Forward tasks wanted per thread, at least (more tiles mean more repacking of W).
-const TASKS_PER_THREAD: usize = 1;
 /// Fewest output pixels in a tile (below this the GEMM's packing overhead dominates).
 const MIN_TILE: usize = 64;
 /// Most output pixels in a tile.
@@ -311,47 +309,84 @@ fn wrapped_cols(g: &Geom, kj: usize, tile: &Range<usize>, mut f: impl FnMut(Rang
 /// `cols[(c − c0)·kh·kw + ki·kw + kj, j]` = `x[c, oy·sh + ki − ph, ox·sw + kj − pw]` (0 in the padding)
 /// for the output pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), and c in `chans`.
 fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>, cols: &mut [F]) {
-    let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
-    let mut rows = cols.chunks_exact_mut(len);
+    let plane = g.h * g.w;
+    let mut rows = cols.chunks_exact_mut(tile.len());
     for c in chans {
         let xc = &xn[c * plane..(c + 1) * plane];
         for ki in 0..g.kh {
             for kj in 0..g.kw {
                 let Some(dst) = rows.next() else { return };
-                if let Some((d, span)) = shift_span(g, ki, kj, &tile) {
-                    // cols[r, j] = x_flat[p + d] on the span, 0 around it and on the wrapped columns
-                    let (a, b) = (span.start - tile.start, span.end - tile.start);
-                    dst[..a].fill(F::zero());
-                    dst[b..].fill(F::zero());
-                    if a < b {
-                        let src = (span.start as isize + d) as usize;
-                        dst[a..b].copy_from_slice(&xc[src..src + (b - a)]);
-                    }
-                    wrapped_cols(g, kj, &tile, |js| dst[js].fill(F::zero()));
-                    continue;
-                }
-                for_each_run(g, ki, kj, tile.clone(), |r| {
-                    let d = &mut dst[r.j0..r.j0 + r.lead + r.valid + r.trail];
-                    let (lead, rest) = d.split_at_mut(r.lead);
-                    let (mid, trail) = rest.split_at_mut(r.valid);
-                    lead.fill(F::zero());
-                    trail.fill(F::zero());
-                    if let Some(iy) = r.iy {
-                        // x row iy from column ix0, every sw-th element
-                        let src = &xc[iy * g.w + r.ix0..];
-                        if sw == 1 {
-                            mid.copy_from_slice(&src[..r.valid]);
-                        } else {
-                            // first element of each sw-wide chunk (a form the compiler vectorises),
-                            // then the last few taps whose chunk would run past the plane
-                            let whole = (src.len() / sw).min(r.valid);
-                            mid[..whole].iter_mut().zip(src.chunks_exact(sw)).for_each(|(m, c)| *m = c[0]);
-                            mid[whole..].iter_mut().zip(src[whole * sw..].iter().step_by(sw)).for_each(|(m, &v)| *m = v);
-                        }
-                    }
-                });
+                im2col_row(g, xc, ki, kj, &tile, dst);
             }
         }
+    }
+}
+
+/// One row of cols: `dst[j]` = `xc[oy·sh + ki − ph, ox·sw + kj − pw]` (0 in the padding) for the output
+/// pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), of the tap (ki, kj) of one channel plane xc.
+fn im2col_row<F: Float>(g: &Geom, xc: &[F], ki: usize, kj: usize, tile: &Range<usize>, dst: &mut [F]) {
+    let sw = g.stride[1];
+    if let Some((d, span)) = shift_span(g, ki, kj, tile) {
+        // dst[j] = x_flat[p + d] on the span, 0 around it and on the wrapped columns
+        let (a, b) = (span.start - tile.start, span.end - tile.start);
+        dst[..a].fill(F::zero());
+        dst[b..].fill(F::zero());
+        if a < b {
+            let src = (span.start as isize + d) as usize;
+            dst[a..b].copy_from_slice(&xc[src..src + (b - a)]);
+        }
+        wrapped_cols(g, kj, tile, |js| dst[js].fill(F::zero()));
+        return;
+    }
+    for_each_run(g, ki, kj, tile.clone(), |r| {
+        let d = &mut dst[r.j0..r.j0 + r.lead + r.valid + r.trail];
+        let (lead, rest) = d.split_at_mut(r.lead);
+        let (mid, trail) = rest.split_at_mut(r.valid);
+        lead.fill(F::zero());
+        trail.fill(F::zero());
+        if let Some(iy) = r.iy {
+            // x row iy from column ix0, every sw-th element
+            let src = &xc[iy * g.w + r.ix0..];
+            if sw == 1 {
+                mid.copy_from_slice(&src[..r.valid]);
+            } else {
+                // first element of each sw-wide chunk (a form the compiler vectorises),
+                // then the last few taps whose chunk would run past the plane
+                let whole = (src.len() / sw).min(r.valid);
+                mid[..whole].iter_mut().zip(src.chunks_exact(sw)).for_each(|(m, c)| *m = c[0]);
+                mid[whole..].iter_mut().zip(src[whole * sw..].iter().step_by(sw)).for_each(|(m, &v)| *m = v);
+            }
+        }
+    });
+}
+
+/// cols(`x[n]`)[:, tile] as the GEMM's B operand, built straight into its packed panels (im2col fused
+/// with packing: no cols matrix is ever stored).
+struct Im2colB<'a, F> {
+    g: &'a Geom,
+    xn: &'a [F],
+    tile: Range<usize>,
+}
+
+impl<F: Float> PackB<F> for Im2colB<'_, F> {
+    fn pack(&self, plan: &Plan<F>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut F) {
+        let (g, nr, taps, plane) = (self.g, plan.nr, self.g.kh * self.g.kw, self.g.h * self.g.w);
+        // output pixels of this block: tile.start + j0 ..
+        let px = self.tile.start + j0..self.tile.start + j0 + nc;
+        with_scratch(nc.next_multiple_of(nr), |row: &mut [F]| {
+            row[nc..].fill(F::zero());
+            for kk in 0..kc {
+                // cols row r = c·taps + ki·kw + kj
+                let r = p0 + kk;
+                let (c, t) = (r / taps, r % taps);
+                im2col_row(g, &self.xn[c * plane..(c + 1) * plane], t / g.kw, t % g.kw, &px, &mut row[..nc]);
+                for (jp, chunk) in row.chunks_exact(nr).enumerate() {
+                    // panel jp, depth kk: dst[jp·kc·NR + kk·NR ..][..NR]
+                    // SAFETY: the GEMM's buffer holds nc.div_ceil(NR) panels of kc·NR elements.
+                    unsafe { std::ptr::copy_nonoverlapping(chunk.as_ptr(), dst.add(jp * kc * nr + kk * nr), nr) };
+                }
+            }
+        });
     }
 }
 
@@ -390,12 +425,6 @@ fn col2im<F: Float>(g: &Geom, dcols: &mut [F], nchans: usize, tile: Range<usize>
             }
         }
     }
-}
-
-/// Input channels per row block of cols: whole channels, about `CHUNK_ROWS` rows, evenly split.
-fn block_chans(g: &Geom) -> usize {
-    let blocks = g.cin.div_ceil((CHUNK_ROWS / (g.kh * g.kw)).max(1));
-    g.cin.div_ceil(blocks)
 }
 
 /// Calls `f(rows, cols)` on consecutive row blocks of `cols(x[n])[:, tile]` covering the input
@@ -471,31 +500,57 @@ impl<'a, F: Float> Operands<'a, F> {
 ///
 /// Torch: `F.conv2d(x, w, b, stride=cfg.stride, padding=cfg.padding)`.
 pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg) -> Result<Array4<F>> {
+    conv2d_fwd_ex(x, w, b, cfg, false, Plan::selected())
+}
+
+/// [`conv2d_fwd`] with the ReLU fused into the GEMM's epilogue when `relu` (y = max(conv + b, 0),
+/// as `F.relu(F.conv2d(..))`), on an explicit GEMM plan (any ISA path).
+pub fn conv2d_fwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg, relu: bool,
+                               plan: &Plan<F>) -> Result<Array4<F>> {
     let b = b.map(|b| fixed::<_, Ix1>(OP, "bias", b)).transpose()?;
     let ops = Operands::new(x, w, b.as_ref().map(|b| b.shape()), cfg)?;
-    let (g, xs, wm) = (ops.g, ops.x()?, ops.wmat()?);
-    let b = b.as_ref().map(|b| b.to_vec());
-    let cc = block_chans(&g);
-    let tile = tile_len::<F>(g.pix(), scratch_rows(&g, cc), (TASKS_PER_THREAD * rayon::current_num_threads()).div_ceil(g.n));
+    let bias = b.as_ref().map(|b| b.to_vec());
+    forward(plan, &ops.g, ops.x()?, ops.wmat()?, bias.as_deref(), relu)
+}
+
+/// A standard-layout matrix as a GEMM operand.
+fn strided<F: Float>(m: ArrayView2<F>) -> Strided<F> {
+    let (rows, cols) = m.dim();
+    let st = m.strides();
+    Strided { ptr: m.as_ptr(), rows, cols, rs: st[0], cs: st[1], scale: F::one() }
+}
+
+/// Output pixels per forward task: two tasks per thread over the batch at least, whole NR panels.
+/// (Every output element is the same chain whatever the tiles, so they may follow the threads.)
+fn forward_tile<F>(g: &Geom, plan: &Plan<F>) -> usize {
+    let per_image = (2 * rayon::current_num_threads()).div_ceil(g.n);
+    g.pix().div_ceil(per_image).next_multiple_of(plan.nr).min(g.pix()).max(1)
+}
+
+/// `Y[n][:, tile]` = W · cols(`x[n]`)[:, tile] (+ b, then ReLU) by tasks (image, tile): one GEMM per
+/// task, W packed once for all of them, cols built straight into the GEMM's packed B panels (x
+/// itself for a pointwise conv).
+fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, bias: Option<&[F]>, relu: bool)
+                     -> Result<Array4<F>> {
+    let wpack = Prepacked::new(plan, &strided(wm));
+    let tile = forward_tile(g, plan);
     let mut y = Array3::<F>::zeros((g.n, g.cout, g.pix()));
-    y.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut yn)| {
+    y.outer_iter_mut().into_par_iter().enumerate().for_each(|(n, mut yn)| {
         let xn = &xs[n * g.img()..(n + 1) * g.img()];
-        yn.axis_chunks_iter_mut(Axis(1), tile).into_par_iter().enumerate().try_for_each(|(t, mut yt)| {
+        yn.axis_chunks_iter_mut(Axis(1), tile).into_par_iter().enumerate().for_each(|(t, mut yt)| {
             let px = t * tile..t * tile + yt.ncols();
-            let beta = match &b {
-                Some(b) => {
-                    yt.outer_iter_mut().zip(b).for_each(|(mut row, &bo)| row.fill(bo));
-                    F::one()
-                }
-                None => F::zero(),
-            };
-            for_each_cols_block(&g, xn, 0..g.cin, cc, px, |rows, cols| {
-                // Y[n][:, tile] (+)= W[:, rows] · cols[rows, tile]; the first block adds to b (or to nothing)
-                let beta = if rows.start == 0 { beta } else { F::one() };
-                gemm(F::one(), wm.slice(s![.., rows]), cols, beta, yt.view_mut());
-            })
-        })
-    })?;
+            let (rsc, c) = (yt.strides()[0], yt.as_mut_ptr());
+            let init = bias.map_or(Init::Zero, |b| Init::Bias(b.as_ptr()));
+            // x[n] as [Cin, H·W], columns of the tile
+            let xt = Strided { ptr: xn[px.start..].as_ptr(), rows: g.cin, cols: px.len(), rs: g.pix() as isize, cs: 1, scale: F::one() };
+            let cols = Im2colB { g, xn, tile: px.clone() };
+            let b: &dyn PackB<F> = if g.pointwise() { &xt } else { &cols };
+            // Y[n][:, tile] = W · cols[:, tile] (+ b, ReLU)
+            // SAFETY: C is this task's own block of y (Cout x tile, row stride H·W); A has Cout rows,
+            // B the tile's columns, both over K; the bias has Cout values.
+            unsafe { gemm::run(plan, g.cout, px.len(), g.k(), SourceA::Packed(&wpack), b, c, rsc, 1, init, relu) };
+        });
+    });
     y.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout)
 }
 
@@ -510,6 +565,12 @@ pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayV
 /// Torch: `torch.autograd.grad(F.conv2d(x, w, b, stride, padding), (x, w, b), g)`.
 pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg,
                             need: Conv2dNeed) -> Result<Conv2dGrads<F>> {
+    conv2d_bwd_ex(x, w, g, cfg, need, Plan::selected())
+}
+
+/// [`conv2d_bwd`] on an explicit GEMM plan (any ISA path).
+pub fn conv2d_bwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg, need: Conv2dNeed,
+                               plan: &Plan<F>) -> Result<Conv2dGrads<F>> {
     let gshape = g.shape().to_vec();
     let ops = Operands::new(x, w, None, cfg)?;
     let geo = ops.g;
@@ -520,16 +581,39 @@ pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>
     }
     let dy = g.as_standard_layout();
     let dys = dy.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: grad_output", &[]))?;
-    let dx = if need.x { Some(input_grad(&geo, ops.wmat()?, dys)?) } else { None };
-    let dw = if need.w { Some(weight_grad(&geo, ops.x()?, dys)?) } else { None };
+    let dx = if need.x { Some(input_grad(plan, &geo, ops.wmat()?, dys)?) } else { None };
+    let dw = if need.w { Some(weight_grad(plan, &geo, ops.x()?, dys)?) } else { None };
     let db = need.b.then(|| bias_grad(&geo, dys));
     Ok(Conv2dGrads { x: dx, w: dw, b: db })
+}
+
+/// For stride 1 with padding below the kernel size, dX is itself a convolution, computed by
+/// [`forward`]: `dX[n, c, y, x]` = Σ_{o, ki, kj} `W[o, c, ki, kj]` · `dY[n, o, y − ki + ph, x − kj + pw]`
+/// = conv(dY, W'), W'`[c, o, ki', kj']` = `W[o, c, kh−1−ki', kw−1−kj']`, padding (kh−1−ph, kw−1−pw).
+/// None when that does not apply (stride > 1, or a pointwise conv, which is one plain GEMM).
+fn input_grad_as_conv<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Option<Result<Array4<F>>> {
+    if g.stride != [1, 1] || g.pointwise() || g.pad[0] >= g.kh || g.pad[1] >= g.kw {
+        return None;
+    }
+    let pad = [g.kh - 1 - g.pad[0], g.kw - 1 - g.pad[1]];
+    let (h, w) = Conv2dCfg::new([1, 1], pad).out_hw(g.ho, g.wo, g.kh, g.kw).ok()?;
+    if (h, w) != (g.h, g.w) {
+        return None;
+    }
+    let taps = g.kh * g.kw;
+    // W'[c, o·taps + t'] = W[o, c·taps + taps − 1 − t'] (t' = ki'·kw + kj' runs the taps backwards)
+    let wt = Array2::from_shape_fn((g.cin, g.cout * taps), |(c, j)| wm[[j / taps, c * taps + taps - 1 - j % taps]]);
+    let gt = Geom { n: g.n, cin: g.cout, h: g.ho, w: g.wo, cout: g.cin, kh: g.kh, kw: g.kw, ho: g.h, wo: g.w, stride: [1, 1], pad };
+    Some(forward(plan, &gt, dy, wt.view(), None, false))
 }
 
 /// dX, by tasks (image, input-channel chunk) that each own `dX[n, chunk]`. The tiles are taken in
 /// bands of about `BAND_BYTES` of dY, all tasks finishing one band before the next starts, so a
 /// band of dY is read from memory once and then from cache by every chunk.
-fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
+fn input_grad<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
+    if let Some(dx) = input_grad_as_conv(plan, g, wm, dy) {
+        return dx;
+    }
     let taps = g.kh * g.kw;
     let (plane, out_len) = (g.h * g.w, g.cout * g.pix());
     // Fewest chunks the row cap allows; more when the threads need more tasks (a multiple of them).
@@ -560,14 +644,14 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
                     let dyt = dyn_.slice(s![.., px.clone()]);
                     if g.pointwise() {
                         // dX[n, chunk, tile] = W[:, chunk]ᵀ · dY[n][:, tile]
-                        gemm(F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]));
+                        gemm_ex(plan, F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]), Epilogue::default());
                         continue;
                     }
                     let dxs = dxc.as_slice_mut().ok_or_else(|| Error::shape(OP, "internal layout error: dx", &[]))?;
                     with_scratch(rows * px.len(), |buf: &mut [F]| {
                         let dcols = ArrayViewMut2::from_shape((rows, px.len()), &mut *buf).map_err(layout)?;
                         // dcols = W[:, chunk]ᵀ · dY[n][:, tile]
-                        gemm(F::one(), wt, dyt, F::zero(), dcols);
+                        gemm_ex(plan, F::one(), wt, dyt, F::zero(), dcols, Epilogue::default());
                         col2im(g, &mut buf[..rows * px.len()], chans.len(), px.clone(), dxs);
                         Ok::<_, Error>(())
                     })?;
@@ -583,7 +667,7 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
 /// added in group order. Each tile builds cols for all of K, so one GEMM packs dY once per tile.
 /// Group 0 sums straight into dW, the others into this thread's reused `PARTIALS` buffer; the
 /// first tile of a group overwrites (beta 0), so no buffer needs clearing.
-fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
+fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
     let (out_len, wlen) = (g.cout * g.pix(), g.cout * g.k());
     let tile = tile_len::<F>(g.pix(), scratch_rows(g, g.cin), DW_GROUPS.div_ceil(g.n));
     let work: Vec<(usize, Range<usize>)> = (0..g.n).flat_map(|n| tiles(g.pix(), tile).map(move |t| (n, t))).collect();
@@ -601,7 +685,7 @@ fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
                 let beta = if t == 0 { F::zero() } else { F::one() };
                 for_each_cols_block(g, xn, 0..g.cin, g.cin, px.clone(), |_, cols| {
                     // dW_group (+)= dY[n][:, tile] · cols[:, tile]ᵀ
-                    gemm(F::one(), dyt, cols.t(), beta, part.view_mut())
+                    gemm_ex(plan, F::one(), dyt, cols.t(), beta, part.view_mut(), Epilogue::default())
                 })?;
             }
             Ok::<_, Error>(())
