@@ -8,9 +8,9 @@
 //! for ic in 0..m step MC:                 A slab MC x KC packed once per (ic, pc), reused by every jc
 //!   for pc in 0..k step KC:
 //!     pack A[ic.., pc..] into MR-row panels
-//!     for jc in 0..n step NC:             B block KC x NC packed into NR-column panels: stays in L2
+//!     for jc in 0..n step NC:             B block KC x NC packed row-major: stays in L2
 //!       for ir in 0..MC step MR:          A micro-panel MR x KC: stays in L1 across the jr loop
-//!         for jr in 0..NC step NR:        micro-kernel: MR x NR tile of C in registers
+//!         for jr in 0..NC step NR:        micro-kernel: MR x NR tile of C in registers, NR columns of B
 //! ```
 //!
 //! Every element of C is one chain of multiply-adds over k in increasing order, started from 0,
@@ -53,28 +53,36 @@ fn default_shape(isa: Isa) -> (usize, usize) {
     }
 }
 
+/// Instantiated micro-kernels: `pick!(entry; (MR, NV), ..)` maps (mr, nv) to `kernel::entry::<E, MR, NV>`.
+macro_rules! pick {
+    ($mr:expr, $nv:expr, $f:ident; $(($m:literal, $v:literal)),*) => {
+        match ($mr, $nv) {
+            $(($m, $v) => Some(kernel::$f::<E, $m, $v> as UKernel<E>),)*
+            _ => None,
+        }
+    };
+}
+
 /// The micro-kernel compiled for (isa, MR, NV), if that shape is instantiated (called through
 /// [`Kernels`], which each `Float` type builds with its own element type).
+#[cfg(target_arch = "x86_64")]
 pub(crate) fn ukernel<E: Float>(isa: Isa, mr: usize, nv: usize) -> Option<UKernel<E>>
 where
     isa::Avx512: isa::Simd<E>,
     isa::Avx2: isa::Simd<E>,
 {
-    macro_rules! pick {
-        ($f:ident; $(($m:literal, $v:literal)),*) => {
-            match (mr, nv) {
-                $(($m, $v) => Some(kernel::$f::<E, $m, $v> as UKernel<E>),)*
-                _ => None,
-            }
-        };
-    }
     match isa {
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => pick!(avx512; (8, 3), (12, 2), (6, 4), (14, 2), (4, 6)),
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => pick!(avx2; (6, 2), (4, 3)),
-        Isa::Generic => pick!(generic; (4, 2)),
-        #[cfg(not(target_arch = "x86_64"))]
+        Isa::Avx512 => pick!(mr, nv, avx512; (8, 3), (12, 2), (6, 4), (14, 2), (4, 6)),
+        Isa::Avx2 => pick!(mr, nv, avx2; (6, 2), (4, 3)),
+        Isa::Generic => pick!(mr, nv, generic; (4, 2)),
+    }
+}
+
+/// The micro-kernel compiled for (isa, MR, NV): off x86 only the portable path exists.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) fn ukernel<E: Float>(isa: Isa, mr: usize, nv: usize) -> Option<UKernel<E>> {
+    match isa {
+        Isa::Generic => pick!(mr, nv, generic; (4, 2)),
         _ => None,
     }
 }
@@ -263,6 +271,7 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
         SourceA::Strided(_) => chunk.div_ceil(mr) * mr * k.max(1),
     };
     let (kc_max, nc_max) = (plan.kc.min(k.max(1)), plan.nc.min(n.div_ceil(nr) * nr));
+    // B block row stride: NC rounded up to NR (the last micro-tile reads NR columns)
     with_bufs(a_len * es, nc_max * kc_max * es, |pa, pb| {
         let (pa, pb) = (pa.cast::<E>(), pb.cast::<E>());
         for ic in (0..m).step_by(chunk) {
@@ -282,7 +291,8 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                     let kc = plan.kc.min(k - p0.min(k));
                     let block_init = if p0 == 0 { init } else { Init::Load };
                     let last = p0 + kc >= k;
-                    b.pack(plan, p0, kc, jc, nc, pb);
+                    let ldb = nc.div_ceil(nr) * nr;
+                    b.pack(plan, p0, kc, jc, nc, pb, ldb);
                     for ir in (0..mc).step_by(mr) {
                         // A micro-panel of rows ic + ir..: K block p0 at p0·mpad, panel ir / MR of kc·MR
                         let ap = apack.wrapping_add(p0 * mpad + ir * kc);
@@ -301,15 +311,15 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                             };
                             let tile = Tile { c: ct, ldc: rsc, init, relu: relu && last, next };
                             let cols = nr.min(nc - jr);
-                            // B micro-panel jr / NR of kc·NR elements
-                            let bp = pb.wrapping_add(jr * kc);
+                            // B columns jr.. of the block
+                            let bp = pb.wrapping_add(jr);
                             // SAFETY: both micro-panels lie in packed storage; a full tile with unit
                             // column stride is valid C; an edge tile goes through a local buffer.
                             unsafe {
                                 if rows == mr && cols == nr && csc == 1 {
-                                    (plan.kernel)(kc, ap, bp, &tile);
+                                    (plan.kernel)(kc, ap, bp, ldb, &tile);
                                 } else {
-                                    edge(plan, kc, ap, bp, &tile, rows, cols, csc);
+                                    edge(plan, kc, ap, bp, ldb, &tile, rows, cols, csc);
                                 }
                             }
                         }
@@ -326,10 +336,11 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
 /// # Safety
 /// As for a full tile, for the rows x cols part of C that exists.
 #[allow(clippy::too_many_arguments)]
-unsafe fn edge<E: Float>(plan: &Plan<E>, kc: usize, ap: *const E, bp: *const E, t: &Tile<E>, rows: usize, cols: usize,
-                         csc: isize) {
+unsafe fn edge<E: Float>(plan: &Plan<E>, kc: usize, ap: *const E, bp: *const E, ldb: usize, t: &Tile<E>, rows: usize,
+                         cols: usize, csc: isize) {
     let (mr, nr) = (plan.mr, plan.nr);
-    let mut buf = [Line([0; 64]); TILE_BYTES / 64];
+    // written before it is read: by the kernel (Zero, Bias) or zeroed and copied from C here (Load)
+    let mut buf = std::mem::MaybeUninit::<[Line; TILE_BYTES / 64]>::uninit();
     let bufp = buf.as_mut_ptr().cast::<E>();
     let mut bias = [E::zero(); MAX_MR];
     // element (i, j) of the C tile: c + i·ldc + j·csc
@@ -338,10 +349,10 @@ unsafe fn edge<E: Float>(plan: &Plan<E>, kc: usize, ap: *const E, bp: *const E, 
     unsafe {
         let init = match t.init {
             Init::Load => {
-                for i in 0..rows {
-                    for j in 0..cols {
-                        // buf[i·NR + j] = C(i, j)
-                        *bufp.add(i * nr + j) = *cij(i, j);
+                for i in 0..mr {
+                    for j in 0..nr {
+                        // buf[i·NR + j] = C(i, j) inside C, 0 outside
+                        *bufp.add(i * nr + j) = if i < rows && j < cols { *cij(i, j) } else { E::zero() };
                     }
                 }
                 Init::Load
@@ -353,13 +364,22 @@ unsafe fn edge<E: Float>(plan: &Plan<E>, kc: usize, ap: *const E, bp: *const E, 
             Init::Zero => Init::Zero,
         };
         let local = Tile { c: bufp, ldc: nr as isize, init, relu: t.relu, next: t.next };
-        (plan.kernel)(kc, ap, bp, &local);
-        for i in 0..rows.min(mr) {
+        (plan.kernel)(kc, ap, bp, ldb, &local);
+        for i in 0..rows {
             for j in 0..cols {
                 *cij(i, j) = *bufp.add(i * nr + j);
             }
         }
     }
+}
+
+/// `dst[p·rows + r]` = `src[r·cols + p]`: the transpose of a row-major rows x cols matrix (packed
+/// like a B block, by 8 x 8 register transposes where the plan allows).
+pub(crate) fn transpose<E: Float>(plan: &Plan<E>, src: &[E], rows: usize, cols: usize, dst: &mut [E]) {
+    assert!(src.len() >= rows * cols && dst.len() >= rows * cols, "transpose: buffers too small");
+    // depth p along the unit stride of src, index r along its rows
+    // SAFETY: both buffers hold rows·cols elements (checked above).
+    unsafe { pack::panel(plan, cols, rows, rows, src.as_ptr(), cols as isize, 1, E::one(), dst.as_mut_ptr()) };
 }
 
 /// What follows the product in [`gemm_ex`]: a bias per row of C, then ReLU.

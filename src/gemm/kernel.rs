@@ -1,6 +1,6 @@
 //! The micro-kernel: an MR x NR tile of C (NR = NV vectors) held in MR·NV registers while it sums
-//! KC rank-1 updates from a packed A micro-panel (MR values broadcast per k) and a packed B
-//! micro-panel (NV vectors loaded per k).
+//! KC rank-1 updates from a packed A micro-panel (MR values broadcast per k) and NR columns of a
+//! packed B block (NV vectors loaded per k, rows `ldb` elements apart).
 //!
 //! It is written once, generic over [`Simd`], and compiled per ISA by `isa_entry!` under that ISA's
 //! `target_feature`. Every element of C is one chain of fused multiply-adds in increasing k,
@@ -33,20 +33,20 @@ pub(crate) struct Tile<E> {
     pub next: *const E,
 }
 
-/// A micro-kernel: (kc, packed A micro-panel, packed B micro-panel, tile).
-pub(crate) type UKernel<E> = unsafe fn(usize, *const E, *const E, &Tile<E>);
+/// A micro-kernel: (kc, packed A micro-panel, first B column, B row stride, tile).
+pub(crate) type UKernel<E> = unsafe fn(usize, *const E, *const E, usize, &Tile<E>);
 
-/// Elements of B read ahead of the current k by the software prefetch, in k steps.
+/// Rows of B read ahead of the current k by the software prefetch.
 const PREFETCH_K: usize = 8;
 
 /// C tile <- init + Σ_kk A(:, kk) ⊗ B(kk, :), then ReLU if asked.
 ///
 /// # Safety
-/// `S`'s ISA is available; `pa` holds kc·MR and `pb` kc·NR elements; the tile is MR x NR valid
-/// elements at `c` with row stride `ldc`.
+/// `S`'s ISA is available; `pa` holds kc·MR elements, `pb` kc rows of NR elements `ldb` apart; the
+/// tile is MR x NR valid elements at `c` with row stride `ldc`.
 #[inline(always)]
 pub(crate) unsafe fn micro<E: Copy, S: Simd<E>, const MR: usize, const NV: usize>(kc: usize, pa: *const E,
-                                                                              pb: *const E, t: &Tile<E>) {
+                                                                              pb: *const E, ldb: usize, t: &Tile<E>) {
     let nr = NV * S::LANES;
     // SAFETY: the caller's contract covers every pointer below: tile rows i < MR, vectors v < NV,
     // packed panels up to kc steps; prefetches never fault.
@@ -70,7 +70,7 @@ pub(crate) unsafe fn micro<E: Copy, S: Simd<E>, const MR: usize, const NV: usize
             // acc[i][v] += A(i, kk) · B(kk, v·LANES .. (v + 1)·LANES)
             let bv: [S::V; NV] = std::array::from_fn(|v| S::load(b.add(v * S::LANES)));
             for j in (0..nr).step_by(line) {
-                S::prefetch(b.wrapping_add(PREFETCH_K * nr + j));
+                S::prefetch(b.wrapping_add(PREFETCH_K * ldb + j));
             }
             for (i, row) in acc.iter_mut().enumerate() {
                 let ai = S::splat(*a.add(i));
@@ -79,7 +79,7 @@ pub(crate) unsafe fn micro<E: Copy, S: Simd<E>, const MR: usize, const NV: usize
                 }
             }
             a = a.add(MR);
-            b = b.add(nr);
+            b = b.add(ldb);
         }
         for (i, row) in acc.iter().enumerate() {
             for (v, &r) in row.iter().enumerate() {
@@ -98,12 +98,12 @@ macro_rules! isa_entry {
         /// As [`micro`]; the CPU supports the ISA.
         #[target_feature(enable = $feat)]
         pub(crate) unsafe fn $name<E: Copy, const MR: usize, const NV: usize>(kc: usize, pa: *const E, pb: *const E,
-                                                                          t: &Tile<E>)
+                                                                          ldb: usize, t: &Tile<E>)
         where
             $isa: Simd<E>,
         {
             // SAFETY: forwarded contract; the target feature is enabled for this body.
-            unsafe { micro::<E, $isa, MR, NV>(kc, pa, pb, t) }
+            unsafe { micro::<E, $isa, MR, NV>(kc, pa, pb, ldb, t) }
         }
     };
 }
@@ -118,7 +118,7 @@ isa_entry!(avx2, super::isa::Avx2, "avx2,fma");
 /// # Safety
 /// As [`micro`].
 pub(crate) unsafe fn generic<E: crate::Float, const MR: usize, const NV: usize>(kc: usize, pa: *const E, pb: *const E,
-                                                                             t: &Tile<E>) {
+                                                                             ldb: usize, t: &Tile<E>) {
     // SAFETY: forwarded contract; the portable path needs no CPU feature.
-    unsafe { micro::<E, super::isa::Generic, MR, NV>(kc, pa, pb, t) }
+    unsafe { micro::<E, super::isa::Generic, MR, NV>(kc, pa, pb, ldb, t) }
 }

@@ -1,9 +1,11 @@
-//! Packing: copying a block of an operand into the panel layout the micro-kernel reads.
+//! Packing: copying a block of an operand into the layout the micro-kernel reads.
 //!
-//! A panel of width w (MR rows of A, or NR columns of B) over kc steps of depth is stored
-//! `dst[kk·w + j]` (depth-major), zero-padded past the used width. A source describes where the
-//! operand's elements come from: a strided matrix ([`Strided`]), an already packed A
-//! ([`Prepacked`]), or one that builds its values on the fly (conv's im2col, in `ops/conv.rs`).
+//! A panel of width w over kc steps of depth is stored `dst[kk·w + j]` (depth-major), zero-padded
+//! past the used width: A in MR-row panels, B as one panel as wide as the block (NC columns rounded
+//! up to NR, so each depth row of the block is one contiguous run the kernel reads NR columns of).
+//! A source describes where the operand's elements come from: a strided matrix ([`Strided`]), an
+//! already packed A ([`Prepacked`]), or one that builds its values on the fly (conv's im2col, in
+//! `ops/conv.rs`).
 
 use super::Plan;
 use crate::Float;
@@ -19,9 +21,9 @@ pub(crate) enum SourceA<'a, E> {
 
 /// A source of the B operand (k x n, loaded as vectors along columns).
 pub(crate) trait PackB<E>: Sync {
-    /// Packs the NR-column panels of columns `j0..j0 + nc` over depth `p0..p0 + kc` into `dst`,
-    /// panel after panel (each kc·NR elements, zero past nc).
-    fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E);
+    /// Packs columns `j0..j0 + nc` over depth `p0..p0 + kc` into `dst` row-major with row stride
+    /// `ldb` >= nc rounded up to NR: `dst[kk·ldb + j]` = B(p0 + kk, j0 + j), 0 for nc <= j < ldb.
+    fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize);
 }
 
 /// A strided matrix `x[i, j]` = `*(ptr + i·rs + j·cs)` of rows x cols, scaled by `scale` when packed.
@@ -71,16 +73,10 @@ impl<E: Float> Strided<E> {
 }
 
 impl<E: Float> PackB<E> for Strided<E> {
-    fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E) {
-        let nr = plan.nr;
-        for (p, c0) in (j0..j0 + nc).step_by(nr).enumerate() {
-            // panel p: columns c0.., index j along cs, depth kk along rs
-            // SAFETY: as for A.
-            unsafe {
-                panel(plan, kc, nr.min(j0 + nc - c0), nr, self.at(p0, c0), self.cs, self.rs, self.scale,
-                      dst.add(p * kc * nr))
-            };
-        }
+    fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize) {
+        // one panel of width ldb: index j along cs, depth kk along rs
+        // SAFETY: the block lies inside `dst` (kc·ldb elements) and the elements read inside the matrix.
+        unsafe { panel(plan, kc, nc, ldb, self.at(p0, j0), self.cs, self.rs, self.scale, dst) };
     }
 }
 
@@ -112,20 +108,24 @@ impl<E: Float> Prepacked<E> {
 
 /// Packs one panel: `dst[kk·w + j]` = scale · `src[j·ps + kk·ks]` for kk < kc, j < used (0 for
 /// used <= j < w). A unit panel stride copies rows; a unit depth stride (a transpose) goes by 8 x 8
-/// register transposes for f32 where the ISA has AVX.
+/// register transposes for f32 where the ISA has AVX. (The zero bits of 0.0 are written with
+/// `write_bytes`.)
 ///
 /// # Safety
 /// `src` reads lie in the operand, `dst` has kc·w elements.
 #[allow(clippy::too_many_arguments)]
-unsafe fn panel<E: Float>(plan: &Plan<E>, kc: usize, used: usize, w: usize, src: *const E, ps: isize, ks: isize,
+pub(crate) unsafe fn panel<E: Float>(plan: &Plan<E>, kc: usize, used: usize, w: usize, src: *const E, ps: isize, ks: isize,
                           scale: E, dst: *mut E) {
     let one = scale == E::one();
     // SAFETY: every access is within the ranges of the contract.
     unsafe {
-        if ps == 1 && used == w && one {
+        if ps == 1 && one {
             for kk in 0..kc {
-                // dst row kk = src(kk, 0..w), contiguous
-                std::ptr::copy_nonoverlapping(src.offset(kk as isize * ks), dst.add(kk * w), w);
+                // dst row kk = src(kk, 0..used), contiguous, then zeros to w
+                std::ptr::copy_nonoverlapping(src.offset(kk as isize * ks), dst.add(kk * w), used);
+                if used < w {
+                    std::ptr::write_bytes(dst.add(kk * w + used), 0, w - used);
+                }
             }
             return;
         }
@@ -154,8 +154,9 @@ unsafe fn transpose_blocks<E: Float>(plan: &Plan<E>, kc: usize, used: usize, w: 
         return (0, 0);
     }
     let (k8, j8) = (kc / 8 * 8, used / 8 * 8);
-    for j0 in (0..j8).step_by(8) {
-        for k0 in (0..k8).step_by(8) {
+    // depth blocks outer: the 8 destination rows of a block are written whole before the next
+    for k0 in (0..k8).step_by(8) {
+        for j0 in (0..j8).step_by(8) {
             // E is f32 (checked above): the casts only rename the element type.
             // SAFETY: AVX is present on every non-portable x86 path; the block lies in the panel.
             unsafe { transpose8(src.offset(j0 as isize * ps + k0 as isize).cast(), ps, dst.add(k0 * w + j0).cast(), w) };

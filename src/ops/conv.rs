@@ -322,6 +322,16 @@ fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>,
     }
 }
 
+/// Zeroes a run that is usually empty or a single padding element (a library call only for longer ones).
+#[inline]
+fn zero<F: Float>(run: &mut [F]) {
+    match run {
+        [] => {}
+        [v] => *v = F::zero(),
+        _ => run.fill(F::zero()),
+    }
+}
+
 /// One row of cols: `dst[j]` = `xc[oy·sh + ki − ph, ox·sw + kj − pw]` (0 in the padding) for the output
 /// pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), of the tap (ki, kj) of one channel plane xc.
 fn im2col_row<F: Float>(g: &Geom, xc: &[F], ki: usize, kj: usize, tile: &Range<usize>, dst: &mut [F]) {
@@ -329,13 +339,13 @@ fn im2col_row<F: Float>(g: &Geom, xc: &[F], ki: usize, kj: usize, tile: &Range<u
     if let Some((d, span)) = shift_span(g, ki, kj, tile) {
         // dst[j] = x_flat[p + d] on the span, 0 around it and on the wrapped columns
         let (a, b) = (span.start - tile.start, span.end - tile.start);
-        dst[..a].fill(F::zero());
-        dst[b..].fill(F::zero());
+        zero(&mut dst[..a]);
+        zero(&mut dst[b..]);
         if a < b {
             let src = (span.start as isize + d) as usize;
             dst[a..b].copy_from_slice(&xc[src..src + (b - a)]);
         }
-        wrapped_cols(g, kj, tile, |js| dst[js].fill(F::zero()));
+        wrapped_cols(g, kj, tile, |js| zero(&mut dst[js]));
         return;
     }
     for_each_run(g, ki, kj, tile.clone(), |r| {
@@ -369,24 +379,19 @@ struct Im2colB<'a, F> {
 }
 
 impl<F: Float> PackB<F> for Im2colB<'_, F> {
-    fn pack(&self, plan: &Plan<F>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut F) {
-        let (g, nr, taps, plane) = (self.g, plan.nr, self.g.kh * self.g.kw, self.g.h * self.g.w);
+    fn pack(&self, _plan: &Plan<F>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut F, ldb: usize) {
+        let (g, taps, plane) = (self.g, self.g.kh * self.g.kw, self.g.h * self.g.w);
         // output pixels of this block: tile.start + j0 ..
         let px = self.tile.start + j0..self.tile.start + j0 + nc;
-        with_scratch(nc.next_multiple_of(nr), |row: &mut [F]| {
-            row[nc..].fill(F::zero());
-            for kk in 0..kc {
-                // cols row r = c·taps + ki·kw + kj
-                let r = p0 + kk;
-                let (c, t) = (r / taps, r % taps);
-                im2col_row(g, &self.xn[c * plane..(c + 1) * plane], t / g.kw, t % g.kw, &px, &mut row[..nc]);
-                for (jp, chunk) in row.chunks_exact(nr).enumerate() {
-                    // panel jp, depth kk: dst[jp·kc·NR + kk·NR ..][..NR]
-                    // SAFETY: the GEMM's buffer holds nc.div_ceil(NR) panels of kc·NR elements.
-                    unsafe { std::ptr::copy_nonoverlapping(chunk.as_ptr(), dst.add(jp * kc * nr + kk * nr), nr) };
-                }
-            }
-        });
+        // SAFETY: the GEMM's buffer holds kc rows of ldb elements.
+        let block = unsafe { std::slice::from_raw_parts_mut(dst, kc * ldb) };
+        for (kk, row) in block.chunks_exact_mut(ldb).enumerate() {
+            // cols row r = c·taps + ki·kw + kj
+            let r = p0 + kk;
+            let (c, t) = (r / taps, r % taps);
+            im2col_row(g, &self.xn[c * plane..(c + 1) * plane], t / g.kw, t % g.kw, &px, &mut row[..nc]);
+            zero(&mut row[nc..]);
+        }
     }
 }
 
@@ -663,26 +668,73 @@ fn input_grad<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -
     dx.into_shape_with_order((g.n, g.cin, g.h, g.w)).map_err(layout)
 }
 
-/// dW, as `DW_GROUPS` partial sums over contiguous runs of (image, tile), fixed by the shapes and
-/// added in group order. Each tile builds cols for all of K, so one GEMM packs dY once per tile.
-/// Group 0 sums straight into dW, the others into this thread's reused `PARTIALS` buffer; the
-/// first tile of a group overwrites (beta 0), so no buffer needs clearing.
+/// Input channels from which dW takes the pixel-major path (below, its rows of Cin contiguous
+/// values are too short to beat im2col + transposed packing).
+const NHWC_MIN_CIN: usize = 16;
+
+/// dW as `DW_GROUPS` partial sums, fixed by the shapes and added in group order; each group is one
+/// chain of GEMMs over its (image, pixel range) pieces in order. Group 0 sums straight into the
+/// result, the others into this thread's reused `PARTIALS` buffer; the first piece of a group
+/// overwrites (Init::Zero), so no buffer needs clearing.
+///
+/// Two ways to feed the GEMM `dW (+)= dY[n][:, range] · cols[:, range]ᵀ`:
+/// - pixel-major (Cin >= `NHWC_MIN_CIN`, not pointwise): x is transposed once to `xᵀ[n][p, c]`, and
+///   K is ordered tap-major (k' = t·Cin + c), so each B row (one pixel) is `taps` contiguous runs
+///   of Cin values of xᵀ (zeros for taps in the padding); the result is permuted back to c·taps + t;
+/// - otherwise: cols tiles in this thread's scratch (x itself when pointwise), packed transposed.
 fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
-    let (out_len, wlen) = (g.cout * g.pix(), g.cout * g.k());
-    let tile = tile_len::<F>(g.pix(), scratch_rows(g, g.cin), DW_GROUPS.div_ceil(g.n));
-    let work: Vec<(usize, Range<usize>)> = (0..g.n).flat_map(|n| tiles(g.pix(), tile).map(move |t| (n, t))).collect();
-    let groups = DW_GROUPS.min(work.len()).max(1);
+    let (pix, wlen, taps) = (g.pix(), g.cout * g.k(), g.kh * g.kw);
+    let nhwc = g.cin >= NHWC_MIN_CIN && !g.pointwise();
+    // the pieces: (image, pixel range), NHWC: the n·pix pixels cut in DW_GROUPS ranges; else tiles
+    let pieces: Vec<Vec<(usize, Range<usize>)>> = if nhwc {
+        let total = g.n * pix;
+        let groups = DW_GROUPS.min(total).max(1);
+        (0..groups)
+            .map(|gi| {
+                // global pixels [gi·total / groups, (gi + 1)·total / groups), split at image ends
+                let (a, b) = (gi * total / groups, (gi + 1) * total / groups);
+                (a / pix..b.div_ceil(pix)).map(|n| (n, a.max(n * pix) - n * pix..b.min(n * pix + pix) - n * pix))
+                    .filter(|(_, r)| !r.is_empty())
+                    .collect()
+            })
+            .collect()
+    } else {
+        let tile = tile_len::<F>(pix, scratch_rows(g, g.cin), DW_GROUPS.div_ceil(g.n));
+        let work: Vec<(usize, Range<usize>)> = (0..g.n).flat_map(|n| tiles(pix, tile).map(move |t| (n, t))).collect();
+        let groups = DW_GROUPS.min(work.len()).max(1);
+        (0..groups).map(|gi| work[gi * work.len() / groups..(gi + 1) * work.len() / groups].to_vec()).collect()
+    };
+    // xᵀ[n][p, c] = x[n][c, p]
+    let xt: Vec<F> = if nhwc {
+        let mut xt = vec![F::zero(); xs.len()];
+        xt.par_chunks_mut(g.img()).zip(xs.par_chunks(g.img())).for_each(|(t, x)| gemm::transpose(plan, x, g.cin, pix, t));
+        xt
+    } else {
+        Vec::new()
+    };
+    let groups = pieces.len();
     let mut dw = Array2::<F>::zeros((g.cout, g.k()));
     with_buf(&PARTIALS, (groups - 1) * wlen, |rest: &mut [F]| {
         let mut parts = vec![dw.view_mut()];
         for chunk in rest.chunks_exact_mut(wlen) {
             parts.push(ArrayViewMut2::from_shape((g.cout, g.k()), chunk).map_err(layout)?);
         }
-        parts.into_par_iter().enumerate().try_for_each(|(gi, mut part)| {
-            for (t, (n, px)) in work[gi * work.len() / groups..(gi + 1) * work.len() / groups].iter().enumerate() {
-                let dyt = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?.slice_move(s![.., px.clone()]);
-                let xn = &xs[n * g.img()..(n + 1) * g.img()];
+        parts.into_par_iter().zip(&pieces).try_for_each(|(mut part, pieces)| {
+            for (t, (n, px)) in pieces.iter().enumerate() {
+                let dyt = mat(&dy[n * g.cout * pix..(n + 1) * g.cout * pix], g.cout, pix)?.slice_move(s![.., px.clone()]);
                 let beta = if t == 0 { F::zero() } else { F::one() };
+                if nhwc {
+                    // dW'[:, t·Cin + c] (+)= dY[n][:, range] · colsᵀ (tap-major K)
+                    let a = strided(dyt);
+                    let b = NhwcColsT { g, xt: &xt[n * g.img()..(n + 1) * g.img()], px0: px.start };
+                    let init = if t == 0 { Init::Zero } else { Init::Load };
+                    let (rsc, c) = (part.strides()[0], part.as_mut_ptr());
+                    // SAFETY: C is this group's own Cout x K matrix; A has Cout rows and B K columns,
+                    // both over the range's pixels.
+                    unsafe { gemm::run(plan, g.cout, g.k(), px.len(), SourceA::Strided(&a), &b, c, rsc, 1, init, false) };
+                    continue;
+                }
+                let xn = &xs[n * g.img()..(n + 1) * g.img()];
                 for_each_cols_block(g, xn, 0..g.cin, g.cin, px.clone(), |_, cols| {
                     // dW_group (+)= dY[n][:, tile] · cols[:, tile]ᵀ
                     gemm_ex(plan, F::one(), dyt, cols.t(), beta, part.view_mut(), Epilogue::default())
@@ -697,7 +749,49 @@ fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result
         });
         Ok(())
     })?;
+    if nhwc {
+        // dW[o, c·taps + t] = dW'[o, t·Cin + c]
+        dw = Array2::from_shape_fn((g.cout, g.k()), |(o, j)| dw[[o, (j % taps) * g.cin + j / taps]]);
+    }
     dw.into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout)
+}
+
+/// colsᵀ with tap-major K (k' = t·Cin + c) over pixels `px0 + ..` of one image, from xᵀ (`[H·W, Cin]`):
+/// B(p, t·Cin + c) = xᵀ[q, c] with q the input pixel tap t of output pixel p reads (0 in the padding).
+struct NhwcColsT<'a, F> {
+    g: &'a Geom,
+    xt: &'a [F],
+    px0: usize,
+}
+
+impl<F: Float> PackB<F> for NhwcColsT<'_, F> {
+    fn pack(&self, _plan: &Plan<F>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut F, ldb: usize) {
+        let (g, cin) = (self.g, self.g.cin);
+        let ([sh, sw], [ph, pw]) = (g.stride, g.pad);
+        // SAFETY: the GEMM's buffer holds kc rows of ldb elements.
+        let block = unsafe { std::slice::from_raw_parts_mut(dst, kc * ldb) };
+        for (kk, row) in block.chunks_exact_mut(ldb).enumerate() {
+            // output pixel p = (oy, ox)
+            let p = self.px0 + p0 + kk;
+            let (oy, ox) = (p / g.wo, p % g.wo);
+            let mut j = j0;
+            while j < j0 + nc {
+                // k' = j = t·Cin + c: the run of channels c.. of tap t = (ki, kj) inside this block
+                let (t, c) = (j / cin, j % cin);
+                let len = (cin - c).min(j0 + nc - j);
+                // input pixel (iy, ix) = (oy·sh + ki − ph, ox·sw + kj − pw)
+                let iy = (oy * sh + t / g.kw).checked_sub(ph).filter(|&iy| iy < g.h);
+                let ix = (ox * sw + t % g.kw).checked_sub(pw).filter(|&ix| ix < g.w);
+                let out = &mut row[j - j0..j - j0 + len];
+                match (iy, ix) {
+                    (Some(iy), Some(ix)) => out.copy_from_slice(&self.xt[(iy * g.w + ix) * cin + c..][..len]),
+                    _ => out.fill(F::zero()),
+                }
+                j += len;
+            }
+            zero(&mut row[nc..]);
+        }
+    }
 }
 
 /// `db[o]` = Σ_n Σ_p `dY[n, o, p]`, in order.
