@@ -704,10 +704,10 @@ fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result
         let groups = DW_GROUPS.min(work.len()).max(1);
         (0..groups).map(|gi| work[gi * work.len() / groups..(gi + 1) * work.len() / groups].to_vec()).collect()
     };
-    // xᵀ[n][p, c] = x[n][c, p]
+    // xᵀ[n][q, c] = x[n][c, q] over the input pixels q
     let xt: Vec<F> = if nhwc {
         let mut xt = vec![F::zero(); xs.len()];
-        xt.par_chunks_mut(g.img()).zip(xs.par_chunks(g.img())).for_each(|(t, x)| gemm::transpose(plan, x, g.cin, pix, t));
+        xt.par_chunks_mut(g.img()).zip(xs.par_chunks(g.img())).for_each(|(t, x)| gemm::transpose(plan, x, g.cin, g.h * g.w, t));
         xt
     } else {
         Vec::new()
