@@ -1,24 +1,25 @@
 //! Convolution: 2-D cross-correlation with any kernel size, any stride, per-axis zero padding and an
-//! optional bias, computed as tiled im2col + GEMM.
+//! optional bias (and optionally a ReLU), computed as GEMMs over im2col columns that are never stored.
 //!
 //! | op | forward | backward (grads to) |
 //! |---|---|---|
 //! | conv2d | `conv2d_fwd`: `Y[n]` = W · cols(`x[n]`) + b | `conv2d_bwd`: dX = col2im(Wᵀ · dY), dW = Σ dY · colsᵀ, db = Σ dY |
 //!
 //! W is the matrix `[Cout, K]` with K = Cin·kh·kw, and cols(`x[n]`) the matrix `[K, Ho·Wo]` whose column p
-//! holds the receptive field of output pixel p. It is never built whole (a 3x3 352->128 conv at
-//! 272x480 would need 1.6 GB): a task builds the columns of one range of output pixels (a tile) in
-//! its thread's scratch buffer of at most `SCRATCH_BYTES` (more only when one K x `MIN_TILE`
-//! block is larger). A 1x1, stride-1, unpadded conv uses `x[n]` itself as cols. Every result is
-//! deterministic and independent of the number of threads:
-//! - forward: tasks (image, tile); cols are built `CHUNK_ROWS` rows (whole channels) at a time,
-//!   each block added by `Y[n][:, tile]` += `W[:, block]` · `cols[block, tile]` while it is in cache;
-//! - dX: tasks (image, input-channel chunk), each owning `dX[n, chunk]` and running over the tiles in
-//!   order (in bands of `BAND_BYTES` of dY shared by all tasks): dcols = `W[:, chunk]ᵀ` · `dY[n][:, tile]`,
-//!   scattered back by col2im;
-//! - dW: the (image, tile) list is cut into `DW_GROUPS` contiguous groups fixed by the shapes; each
-//!   group sums dY·colsᵀ over its tiles with one GEMM per tile (cols for all of K) into its own
-//!   partial, and the partials are added in group order;
+//! holds the receptive field of output pixel p. cols is never built whole (a 3x3 352->128 conv at
+//! 272x480 would need 1.6 GB). Every result is deterministic and independent of the number of
+//! threads (every output element is one chain of the GEMM, see `gemm.rs`):
+//! - forward: tasks (image, tile of output pixels), one GEMM each with W packed once per call and
+//!   shared; the GEMM's B blocks are filled by im2col straight from x (`Im2colB`), or are x itself
+//!   for a pointwise conv; the bias starts the chains and the ReLU runs in the GEMM's epilogue;
+//! - dX: for stride 1 with padding below the kernel size, itself a forward conv of dY with the
+//!   flipped, transposed weights (`input_grad_as_conv`); otherwise tasks (image, input-channel
+//!   chunk), each owning `dX[n, chunk]` and running over the tiles in order (in bands of
+//!   `BAND_BYTES` of dY shared by all tasks): dcols = `W[:, chunk]ᵀ` · `dY[n][:, tile]`, scattered
+//!   back by col2im;
+//! - dW: `DW_GROUPS` partial sums fixed by the shapes, added in group order; B built from x in
+//!   pixel-major layout with tap-major K (`NhwcColsT`), or from cols tiles in scratch for few
+//!   input channels;
 //! - db: per output channel, Σ over images and pixels in order.
 
 use crate::gemm::{self, gemm_ex, Epilogue, Init, PackB, Plan, Prepacked, SourceA, Strided};
@@ -38,13 +39,11 @@ const SCRATCH_BYTES: usize = 4 << 20;
 const MIN_TILE: usize = 64;
 /// Most output pixels in a tile.
 const MAX_TILE: usize = 1024;
-/// Tiles are a multiple of the AVX-512 GEMM micro-kernel's 48-column panel.
-const TILE_ALIGN: usize = 48;
 /// dY read per band of the input gradient (so that it is reused from cache by every channel chunk).
 const BAND_BYTES: usize = 2 << 20;
 /// Partial dW sums (the parallelism of the weight gradient; fixed, so dW does not depend on the threads).
 const DW_GROUPS: usize = 4;
-/// Rows (channels · taps, whole channels) of a forward cols block and of a dX task's dcols, about:
+/// Rows (channels · taps, whole channels) of a col2im dX task's dcols, about:
 /// small enough for the block to stay in L2 while the GEMM packs it.
 const CHUNK_ROWS: usize = 256;
 
@@ -177,13 +176,13 @@ fn layout(e: ndarray::ShapeError) -> Error {
 }
 
 /// Pixels per tile: at most what fits `rows` x tile in the scratch budget, at least `min_tiles`
-/// tiles per image, never below `MIN_TILE` (unless the image is smaller), a multiple of `TILE_ALIGN`.
-fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize) -> usize {
+/// tiles per image, never below `MIN_TILE` (unless the image is smaller), a multiple of `align`.
+fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize, align: usize) -> usize {
     let budget = SCRATCH_BYTES / std::mem::size_of::<F>() / rows.max(1);
     let split = pix.div_ceil(min_tiles.max(1));
     let most = budget.min(split).clamp(MIN_TILE, MAX_TILE);
     // equal tiles: as few as `most` allows
-    pix.div_ceil(pix.div_ceil(most)).next_multiple_of(TILE_ALIGN).min(pix).max(1)
+    pix.div_ceil(pix.div_ceil(most)).next_multiple_of(align).min(pix).max(1)
 }
 
 /// The tiles of one image: consecutive ranges of `len` output pixels.
@@ -606,8 +605,14 @@ fn input_grad_as_conv<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy:
         return None;
     }
     let taps = g.kh * g.kw;
-    // W'[c, o·taps + t'] = W[o, c·taps + taps − 1 − t'] (t' = ki'·kw + kj' runs the taps backwards)
-    let wt = Array2::from_shape_fn((g.cin, g.cout * taps), |(c, j)| wm[[j / taps, c * taps + taps - 1 - j % taps]]);
+    let mut wt = Array2::<F>::zeros((g.cin, g.cout * taps));
+    for (o, wo) in wm.outer_iter().enumerate() {
+        for (c, mut wc) in wt.outer_iter_mut().enumerate() {
+            // W'[c, o·taps + t'] = W[o, c·taps + taps − 1 − t'] (t' = ki'·kw + kj' runs the taps backwards)
+            let (dst, src) = (wc.slice_mut(s![o * taps..(o + 1) * taps]), wo.slice(s![c * taps..(c + 1) * taps]));
+            dst.into_iter().zip(src.iter().rev()).for_each(|(d, &v)| *d = v);
+        }
+    }
     let gt = Geom { n: g.n, cin: g.cout, h: g.ho, w: g.wo, cout: g.cin, kh: g.kh, kw: g.kw, ho: g.h, wo: g.w, stride: [1, 1], pad };
     Some(forward(plan, &gt, dy, wt.view(), None, false))
 }
@@ -627,7 +632,7 @@ fn input_grad<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -
     let chunks = (2 * threads).div_ceil(g.n).max(min_chunks).next_multiple_of(threads).min(g.cin);
     let cc = g.cin.div_ceil(chunks);
     // The tile depends on the shapes only (the widest chunk), so the sums do not depend on the threads.
-    let tile = tile_len::<F>(g.pix(), g.cin.div_ceil(min_chunks) * taps, 1);
+    let tile = tile_len::<F>(g.pix(), g.cin.div_ceil(min_chunks) * taps, 1, plan.nr);
     let band = tile * (BAND_BYTES / (g.cout * tile * std::mem::size_of::<F>()).max(1)).max(1);
     let mut dx = Array3::<F>::zeros((g.n, g.cin, plane));
     if let (false, Some(d)) = (g.pointwise(), dx.as_slice_mut()) {
@@ -699,7 +704,7 @@ fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result
             })
             .collect()
     } else {
-        let tile = tile_len::<F>(pix, scratch_rows(g, g.cin), DW_GROUPS.div_ceil(g.n));
+        let tile = tile_len::<F>(pix, scratch_rows(g, g.cin), DW_GROUPS.div_ceil(g.n), 8);
         let work: Vec<(usize, Range<usize>)> = (0..g.n).flat_map(|n| tiles(pix, tile).map(move |t| (n, t))).collect();
         let groups = DW_GROUPS.min(work.len()).max(1);
         (0..groups).map(|gi| work[gi * work.len() / groups..(gi + 1) * work.len() / groups].to_vec()).collect()
@@ -750,8 +755,17 @@ fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result
         Ok(())
     })?;
     if nhwc {
-        // dW[o, c·taps + t] = dW'[o, t·Cin + c]
-        dw = Array2::from_shape_fn((g.cout, g.k()), |(o, j)| dw[[o, (j % taps) * g.cin + j / taps]]);
+        let mut perm = Array2::<F>::zeros((g.cout, g.k()));
+        perm.outer_iter_mut().into_par_iter().zip(dw.outer_iter()).for_each(|(mut dst, src)| {
+            let (dst, src) = (dst.as_slice_mut(), src.as_slice());
+            if let (Some(dst), Some(src)) = (dst, src) {
+                for (c, d) in dst.chunks_exact_mut(taps).enumerate() {
+                    // dW[o, c·taps + t] = dW'[o, t·Cin + c]
+                    d.iter_mut().enumerate().for_each(|(t, d)| *d = src[t * g.cin + c]);
+                }
+            }
+        });
+        dw = perm;
     }
     dw.into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout)
 }
