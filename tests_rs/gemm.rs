@@ -175,3 +175,21 @@ fn cpu_info_and_measured_peak_are_plausible() {
     assert!(one > 1.0 && one < 1000.0, "peak {one}");
     assert!(fma_peak_gflops(0, Isa::Generic).is_err());
 }
+
+#[test]
+fn blocking_follows_the_cache_sizes() {
+    // (es, MR, NR, L1d, L2, L3 share) -> (KC, MC, NC), the figures `gemm::blocking` documents
+    use _core::gemm::blocking;
+    let (kc, _, nc) = blocking(4, 8, 48, 48 << 10, 2 << 20, 0);
+    assert_eq!((kc, nc), (768, 336), "Sapphire/Emerald Rapids");
+    let (kc, mc, nc) = blocking(4, 8, 48, 32 << 10, 1 << 20, 4 << 20);
+    assert_eq!((kc, mc, nc), (512, 1024, 240), "Zen 4 (32 MiB L3 over 8 cores)");
+    let (kc, _, nc) = blocking(4, 4, 24, 32 << 10, 256 << 10, 0);
+    assert_eq!((kc, nc), (336, 96), "AVX2 client core");
+    // every plan's micro-panel fits L1 and its B block L2
+    let cpu = cpu_info();
+    for isa in paths() {
+        let p = Plan::<f32>::for_isa(isa).unwrap();
+        assert!(p.mr * p.kc * 4 <= cpu.l1d && p.kc * p.nc * 4 <= cpu.l2, "{}", p.describe());
+    }
+}

@@ -24,6 +24,15 @@ impl Isa {
     /// Every path, widest first.
     pub const ALL: [Isa; 3] = [Isa::Avx512, Isa::Avx2, Isa::Generic];
 
+    /// Position in [`Isa::ALL`].
+    pub fn index(self) -> usize {
+        match self {
+            Isa::Avx512 => 0,
+            Isa::Avx2 => 1,
+            Isa::Generic => 2,
+        }
+    }
+
     /// The name `MIPNET_ISA` takes.
     pub fn name(self) -> &'static str {
         match self {
