@@ -286,7 +286,6 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
         SourceA::Strided(_) => chunk.div_ceil(mr) * mr * k.max(1),
     };
     let (kc_max, nc_max) = (plan.kc.min(k.max(1)), plan.nc.min(n.div_ceil(nr) * nr));
-    // B block row stride: NC rounded up to NR (the last micro-tile reads NR columns)
     with_bufs(a_len * es, nc_max * kc_max * es, |pa, pb| {
         let (pa, pb) = (pa.cast::<E>(), pb.cast::<E>());
         for ic in (0..m).step_by(chunk) {
@@ -306,6 +305,7 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                     let kc = plan.kc.min(k - p0.min(k));
                     let block_init = if p0 == 0 { init } else { Init::Load };
                     let last = p0 + kc >= k;
+                    // B block row stride: nc rounded up to NR (the last micro-tile reads NR columns)
                     let ldb = nc.div_ceil(nr) * nr;
                     b.pack(plan, p0, kc, jc, nc, pb, ldb);
                     for ir in (0..mc).step_by(mr) {

@@ -56,16 +56,29 @@ fn chains_generic(iters: usize) -> f32 {
     unsafe { chains::<super::isa::Generic, CHAINS_GENERIC>(iters) }
 }
 
-/// The loop of `isa` and the floating-point operations of one of its iterations.
+/// Runs [`chains`] on AVX-512 (reached only after `Isa::supported`).
+#[cfg(target_arch = "x86_64")]
+fn run_avx512(iters: usize) -> f32 {
+    // SAFETY: `fma_peak_gflops` picks this loop only when the CPU has AVX-512F.
+    unsafe { chains_avx512(iters) }
+}
+
+/// Runs [`chains`] on AVX2 + FMA (reached only after `Isa::supported`).
+#[cfg(target_arch = "x86_64")]
+fn run_avx2(iters: usize) -> f32 {
+    // SAFETY: `fma_peak_gflops` picks this loop only when the CPU has AVX2 and FMA.
+    unsafe { chains_avx2(iters) }
+}
+
+/// The loop of `isa` and the floating-point operations of one of its iterations
+/// (2 per lane per chain: one multiply, one add).
 fn kernel(isa: Isa) -> (fn(usize) -> f32, f64) {
-    let lanes = |bits: usize| (bits / 32) as f64;
     match isa {
-        // SAFETY (both x86 arms): reached only after `isa.supported()`.
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => (|n| unsafe { chains_avx512(n) }, 2.0 * CHAINS_WIDE as f64 * lanes(512)),
+        Isa::Avx512 => (run_avx512, 2.0 * (CHAINS_WIDE * 16) as f64),
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => (|n| unsafe { chains_avx2(n) }, 2.0 * CHAINS_AVX2 as f64 * lanes(256)),
-        _ => (chains_generic, 2.0 * CHAINS_GENERIC as f64 * 4.0),
+        Isa::Avx2 => (run_avx2, 2.0 * (CHAINS_AVX2 * 8) as f64),
+        _ => (chains_generic, 2.0 * (CHAINS_GENERIC * super::isa::GENERIC_LANES) as f64),
     }
 }
 
