@@ -217,6 +217,20 @@ impl<E: Float> Plan<E> {
         }
     }
 
+    /// The depth of the K blocks of a product of depth k: KC, or less so that the blocks are equal
+    /// (3168 = 5 x 640 rather than 4 x 768 + 96), a multiple of 8.
+    pub fn kc_for(&self, k: usize) -> usize {
+        // ceil(k / blocks) rounded up to 8, blocks = ceil(k / KC)
+        k.div_ceil(k.div_ceil(self.kc).max(1)).next_multiple_of(8).clamp(8, self.kc.max(8))
+    }
+
+    /// The width of the column blocks of a product with n columns: NC, or less so that the blocks
+    /// are equal in whole micro-panels (768 = 3 x 256 rather than 2 x 336 + 96).
+    pub fn nc_for(&self, n: usize) -> usize {
+        // ceil(n / blocks) rounded up to NR, blocks = ceil(n / NC)
+        n.div_ceil(n.div_ceil(self.nc).max(1)).next_multiple_of(self.nr).min(self.nc)
+    }
+
     /// "avx512 8x48 KC=768 MC=4096 NC=336".
     pub fn describe(&self) -> String {
         format!("{} {}x{} KC={} MC={} NC={}", self.isa.name(), self.mr, self.nr, self.kc, self.mc, self.nc)
@@ -285,7 +299,9 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
         SourceA::Packed(_) => 0,
         SourceA::Strided(_) => chunk.div_ceil(mr) * mr * k.max(1),
     };
-    let (kc_max, nc_max) = (plan.kc.min(k.max(1)), plan.nc.min(n.div_ceil(nr) * nr));
+    // equal K blocks of kcb and column blocks of ncb (the chains do not depend on them)
+    let (kcb, ncb) = (plan.kc_for(k), plan.nc_for(n));
+    let (kc_max, nc_max) = (kcb.min(k.max(1)), ncb.min(n.div_ceil(nr) * nr));
     with_bufs(a_len * es, nc_max * kc_max * es, |pa, pb| {
         let (pa, pb) = (pa.cast::<E>(), pb.cast::<E>());
         for ic in (0..m).step_by(chunk) {
@@ -298,11 +314,11 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                     (pa.cast_const(), mc.div_ceil(mr) * mr)
                 }
             };
-            for jc in (0..n).step_by(plan.nc) {
-                let nc = plan.nc.min(n - jc);
+            for jc in (0..n).step_by(ncb) {
+                let nc = ncb.min(n - jc);
                 // k = 0 still runs one empty block: it writes the initial values (and the ReLU)
-                for p0 in (0..k.max(1)).step_by(plan.kc) {
-                    let kc = plan.kc.min(k - p0.min(k));
+                for p0 in (0..k.max(1)).step_by(kcb) {
+                    let kc = kcb.min(k - p0.min(k));
                     let block_init = if p0 == 0 { init } else { Init::Load };
                     let last = p0 + kc >= k;
                     // B block row stride: nc rounded up to NR (the last micro-tile reads NR columns)

@@ -50,7 +50,7 @@ impl<E: Float> Strided<E> {
 
 impl<E: Float> Strided<E> {
     /// Packs rows `i0..i0 + mc` over all of the depth into `dst` in the layout of [`Prepacked`]: K
-    /// block after K block (the block at depth p0 starts at p0·mpad, mpad = mc rounded up to MR),
+    /// block (of `plan.kc_for(k)`) after K block (the block at depth p0 starts at p0·mpad, mpad = mc rounded up to MR),
     /// each holding the MR-row panels (kc·MR elements each, zero rows past mc).
     ///
     /// # Safety
@@ -58,8 +58,9 @@ impl<E: Float> Strided<E> {
     pub(crate) unsafe fn pack_rows(&self, plan: &Plan<E>, i0: usize, mc: usize, dst: *mut E) {
         let (mr, k) = (plan.mr, self.cols);
         let mpad = mc.div_ceil(mr) * mr;
-        for p0 in (0..k).step_by(plan.kc) {
-            let kc = plan.kc.min(k - p0);
+        let kcb = plan.kc_for(k);
+        for p0 in (0..k).step_by(kcb) {
+            let kc = kcb.min(k - p0);
             for (p, r0) in (i0..i0 + mc).step_by(mr).enumerate() {
                 // panel p of block p0: rows r0.., index i along rs, depth kk along cs, at p0·mpad + p·kc·MR
                 // SAFETY: the panel lies inside `dst` and the elements read inside the matrix.
