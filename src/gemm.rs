@@ -1,76 +1,490 @@
 //! The only door to matrix multiplication. Transposes are stride swaps (`view.t()`), never copies.
 //!
-//! f32 products on AVX-512 CPUs (from OWN_KERNEL_MIN multiply-adds) run mipnet's own kernel
-//! (`avx512`: 8-15% faster than matrixmultiply's on conv2d's shapes, about 30% when an operand is
-//! transposed); everything else runs `Float::gemm_raw` (matrixmultiply).
+//! Every f32 and f64 product runs mipnet's own packed GEMM (BLIS loop order), on the ISA path
+//! [`Isa::selected`] picks (`MIPNET_ISA`, else the widest the CPU has) with a [`Plan`] derived at
+//! run time from the CPU's caches:
+//!
+//! ```text
+//! for ic in 0..m step MC:                 A slab MC x KC packed once per (ic, pc), reused by every jc
+//!   for pc in 0..k step KC:
+//!     pack A[ic.., pc..] into MR-row panels
+//!     for jc in 0..n step NC:             B block KC x NC packed row-major: stays in L2
+//!       for ir in 0..MC step MR:          A micro-panel MR x KC: stays in L1 across the jr loop
+//!         for jr in 0..NC step NR:        micro-kernel: MR x NR tile of C in registers, NR columns of B
+//! ```
+//!
+//! Every element of C is one chain of multiply-adds over k in increasing order, started from 0,
+//! from beta·C or from its bias, and continued across K blocks by reloading C: the result does
+//! not depend on the block sizes, the micro-kernel shape or how callers tile C (so not on the
+//! thread count either), and it is bitwise the same on the AVX-512 and AVX2 paths (both fuse the
+//! multiply-add); the portable path rounds the product and the sum separately.
 
-#[cfg(target_arch = "x86_64")]
-mod avx512;
+mod cpu;
+mod isa;
+mod kernel;
+mod pack;
+mod peak;
 
-use crate::Float;
+pub use cpu::{cpu_info, CpuInfo};
+pub use isa::{Isa, ISA_ENV};
+pub(crate) use kernel::Init;
+use kernel::{Tile, UKernel};
+pub(crate) use pack::{PackB, Prepacked, SourceA, Strided};
+pub use peak::fma_peak_gflops;
+
+use crate::{Error, Float, Result};
 use ndarray::{ArrayView2, ArrayViewMut2, Axis};
 use rayon::prelude::*;
+use std::cell::RefCell;
+use std::sync::OnceLock;
 
-/// Multiply-adds (m·n·k) from which f32 products use the AVX-512 kernel (below, packing dominates).
-const OWN_KERNEL_MIN: usize = 1 << 15;
-
-/// C <- alpha * A·B + beta * C for strided 2-D views, on the calling thread.
-///
-/// Shapes are internal invariants of the calling kernel (validated before), so a mismatch is a bug
-/// and panics rather than corrupting memory.
-pub fn gemm<F: Float>(alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F, mut c: ArrayViewMut2<F>) {
-    let (m, k) = a.dim();
-    let (k2, n) = b.dim();
-    assert!(k == k2 && c.dim() == (m, n), "gemm: inner dims {k} vs {k2}, C {:?} vs ({m},{n})", c.dim());
-    if m == 0 || n == 0 {
-        return;
-    }
-    if k == 0 {
-        // A·B is the zero matrix: C <- beta * C (beta 0 must clear NaN garbage, as BLAS does).
-        c.mapv_inplace(|v| if beta == F::zero() { F::zero() } else { beta * v });
-        return;
-    }
-    let (sa, sb, sc) = (a.strides(), b.strides(), c.strides().to_vec());
-    #[cfg(target_arch = "x86_64")]
-    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>() && m * n * k >= OWN_KERNEL_MIN && avx512::available() {
-        // F is f32 (checked above), so the casts only rename the element type.
-        let f = |v: F| v.to_f32().unwrap_or(0.0);
-        // SAFETY: AVX-512F is present; the views own valid memory of the checked shapes; C is a
-        // unique mutable view, so it aliases neither A nor B.
-        unsafe {
-            avx512::sgemm(m, k, n, f(alpha), a.as_ptr().cast(), sa[0], sa[1], b.as_ptr().cast(), sb[0], sb[1],
-                          f(beta), c.as_mut_ptr().cast(), sc[0], sc[1]);
+/// Instantiated micro-kernels: `pick!(mr, nv, entry; (MR, NV), ..)` maps (mr, nv) to
+/// `kernel::entry::<E, MR, NV>`. The first shape of each path is its default (see [`ukernel`]); the
+/// others are there for `examples/gemm_tune.rs` to compare on a new CPU.
+macro_rules! pick {
+    ($mr:expr, $nv:expr, $f:ident; $(($m:literal, $v:literal)),*) => {
+        match ($mr, $nv) {
+            $(($m, $v) => Some(kernel::$f::<E, $m, $v> as UKernel<E>),)*
+            _ => None,
         }
-        return;
-    }
-    // SAFETY: the views own valid memory of the checked shapes; C is a unique mutable view.
-    unsafe {
-        F::gemm_raw(m, k, n, alpha, a.as_ptr(), sa[0], sa[1], b.as_ptr(), sb[0], sb[1], beta,
-                    c.as_mut_ptr(), sc[0], sc[1]);
+    };
+}
+
+/// The micro-kernel compiled for (isa, MR, NV), if that shape is instantiated (called through
+/// [`Kernels`], which each `Float` type builds with its own element type).
+///
+/// Default shapes, (MR, NV) with NR = NV · lanes:
+/// - AVX-512 8 x 3 vectors (8 x 48 f32): 24 accumulators + 3 B vectors + 1 broadcast of the 32
+///   registers; per k, 3 vector loads and 8 broadcasts for 24 FMAs, under the 2 loads per cycle of
+///   Intel (2 FMA ports) and of Zen 4 (one 512-bit FMA per cycle, double-pumped, so half the loads
+///   per FMA suffice there); 24 independent chains cover 4-cycle latency x 2 ports three times over.
+///   Measured on a Xeon (model 207) at one thread, 1024x1152x2048: 8x48 90%, 12x32 88%, 14x32 87%,
+///   6x64 86% of the FMA peak.
+/// - AVX2 4 x 3 (4 x 24): 12 accumulators + 3 + 1 = the 16 registers; 85% against 81% for 6 x 16.
+/// - Portable 4 x 2 vectors of 4.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn ukernel<E: Float>(isa: Isa, mr: usize, nv: usize) -> Option<UKernel<E>>
+where
+    isa::Avx512: isa::Simd<E>,
+    isa::Avx2: isa::Simd<E>,
+{
+    match isa {
+        Isa::Avx512 => pick!(mr, nv, avx512; (8, 3), (12, 2), (14, 2), (6, 4)),
+        Isa::Avx2 => pick!(mr, nv, avx2; (4, 3), (6, 2)),
+        Isa::Generic => pick!(mr, nv, generic; (4, 2)),
     }
 }
 
+/// The micro-kernel compiled for (isa, MR, NV): off x86 only the portable path exists.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) fn ukernel<E: Float>(isa: Isa, mr: usize, nv: usize) -> Option<UKernel<E>> {
+    match isa {
+        Isa::Generic => pick!(mr, nv, generic; (4, 2)),
+        _ => None,
+    }
+}
+
+/// The default micro-kernel shape (MR, NV) of each path (the first of its list in [`ukernel`]).
+fn default_shape(isa: Isa) -> (usize, usize) {
+    match isa {
+        Isa::Avx512 => (8, 3),
+        Isa::Avx2 => (4, 3),
+        Isa::Generic => (4, 2),
+    }
+}
+
+/// Elements of E per vector register of `isa`.
+fn lanes<E>(isa: Isa) -> usize {
+    match isa {
+        Isa::Generic => isa::GENERIC_LANES,
+        _ => isa.vector_bits() / 8 / std::mem::size_of::<E>(),
+    }
+}
+
+/// A `Float` type's micro-kernels and its plan per ISA path (one static per type, see
+/// `Float::gemm_kernels`).
+pub struct Kernels<E: 'static> {
+    plans: [OnceLock<Plan<E>>; 3],
+    pick: fn(Isa, usize, usize) -> Option<UKernel<E>>,
+}
+
+impl<E> Kernels<E> {
+    /// The kernels of `pick` (`ukernel::<E>`), no plan built yet.
+    pub(crate) const fn new(pick: fn(Isa, usize, usize) -> Option<UKernel<E>>) -> Self {
+        Kernels { plans: [OnceLock::new(), OnceLock::new(), OnceLock::new()], pick }
+    }
+}
+
+/// Bytes of the stack buffer an edge tile goes through (MR·NR elements at most).
+const TILE_BYTES: usize = 4096;
+
+/// How one ISA path multiplies: micro-kernel shape and block sizes.
+#[derive(Clone, Copy, Debug)]
+pub struct Plan<E> {
+    pub isa: Isa,
+    /// Rows of the micro-tile (A values broadcast per k).
+    pub mr: usize,
+    /// Columns of the micro-tile (B vectors per k times lanes).
+    pub nr: usize,
+    /// Depth of a packed block.
+    pub kc: usize,
+    /// Rows of A packed at a time.
+    pub mc: usize,
+    /// Columns of B packed at a time.
+    pub nc: usize,
+    kernel: UKernel<E>,
+}
+
+/// The block sizes for a micro-tile of MR x NR elements of `es` bytes, from the cache sizes.
+///
+/// - KC: the A micro-panel (MR x KC) fills half of L1d; it is reused from L1 by every micro-tile
+///   of the jr loop while B rows and C lines stream through the other half. Capped so that a B
+///   block of 4 micro-panels (KC x 4·NR) still fits half of L2 (small-L2 cores).
+/// - NC: the packed B block (KC x NC) fills half of L2, read from there once per A micro-panel.
+/// - MC: the A slab (MC x KC), read once per B block, fills half of this core's share of the last
+///   level (4 x L2 when it is unknown); it bounds the packing buffer and B's repacking.
+///
+/// f32 on AVX-512 (8 x 48): Sapphire/Emerald Rapids (48 KiB L1d, 2 MiB L2) KC 768, NC 336; Zen 4
+/// (32 KiB, 1 MiB) KC 512, NC 240: the same 16 KiB A micro-panel in L1 and 0.5 MiB B block in
+/// L2 as BLIS's zen4 sgemm (its 480 x 12 B micro-panel, 512 x 480 A block, roles transposed).
+/// AVX2 (4 x 24) on a 32 KiB / 256 KiB core (Haswell..Skylake client): KC 336, NC 96.
+pub fn blocking(es: usize, mr: usize, nr: usize, l1d: usize, l2: usize, l3_share: usize) -> (usize, usize, usize) {
+    // KC = min((L1d / 2) / (MR · es), (L2 / 2) / (4 · NR · es)), a multiple of 8, in [64, 1024]
+    let kc = ((l1d / 2 / (mr * es)).min(l2 / 2 / (4 * nr * es)) / 8 * 8).clamp(64, 1024);
+    // NC = (L2 / 2) / (KC · es), whole NR panels, at least one
+    let nc = (l2 / 2 / (kc * es) / nr * nr).max(nr);
+    // MC = (share / 2) / (KC · es), whole MR panels, in [8 MR, 4096]
+    let share = if l3_share > 0 { l3_share } else { 4 * l2 };
+    let mc = (share / 2 / (kc * es) / mr * mr).clamp(8 * mr, 4096 / mr * mr);
+    (kc, mc, nc)
+}
+
+impl<E: Float> Plan<E> {
+    /// The plan of `isa` for this CPU: its default micro-kernel and the block sizes [`blocking`]
+    /// derives from the cache sizes (built once per ISA).
+    ///
+    /// Fails when the CPU does not support `isa`.
+    pub fn for_isa(isa: Isa) -> Result<&'static Plan<E>> {
+        if !isa.supported() {
+            return Err(Error::arg("gemm", format!("this CPU does not support {}", isa.name())));
+        }
+        let slot = &E::gemm_kernels().plans[isa.index()];
+        Ok(slot.get_or_init(|| {
+            let (mr, nv) = default_shape(isa);
+            let nr = nv * lanes::<E>(isa);
+            let cpu = cpu_info();
+            let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+            let (kc, mc, nc) = blocking(std::mem::size_of::<E>(), mr, nr, cpu.l1d, cpu.l2, cpu.l3 / cores);
+            // the default shapes are instantiated (tests_rs/gemm.rs builds every plan), so the
+            // portable kernel never stands in for them
+            let kernel = (E::gemm_kernels().pick)(isa, mr, nv).unwrap_or(kernel::generic::<E, 4, 2>);
+            Plan { isa, mr, nr, kc, mc, nc, kernel }
+        }))
+    }
+
+    /// The plan of [`Isa::selected`] (supported by construction: detected, or checked against the
+    /// CPU when `MIPNET_ISA` was parsed), else the portable one.
+    pub fn selected() -> &'static Plan<E> {
+        match Plan::for_isa(Isa::selected()) {
+            Ok(plan) => plan,
+            Err(_) => Plan::portable(),
+        }
+    }
+
+    /// The portable plan, which every CPU supports.
+    fn portable() -> &'static Plan<E> {
+        let (mr, nv) = default_shape(Isa::Generic);
+        E::gemm_kernels().plans[Isa::Generic.index()].get_or_init(|| Plan {
+            isa: Isa::Generic, mr, nr: nv * isa::GENERIC_LANES, kc: 256, mc: 256, nc: 256,
+            kernel: kernel::generic::<E, 4, 2>,
+        })
+    }
+
+    /// A plan with explicit sizes (for tuning): the shape must be one of the instantiated
+    /// micro-kernels of `isa`, the block sizes non-zero.
+    pub fn custom(isa: Isa, mr: usize, nr: usize, kc: usize, mc: usize, nc: usize) -> Result<Plan<E>> {
+        let lanes = lanes::<E>(isa);
+        let kernel = (nr % lanes == 0 && mr * nr * std::mem::size_of::<E>() <= TILE_BYTES && mr <= MAX_MR)
+            .then(|| (E::gemm_kernels().pick)(isa, mr, nr / lanes))
+            .flatten();
+        match kernel {
+            Some(kernel) if isa.supported() && kc > 0 && mc > 0 && nc > 0 => {
+                // MC and NC are whole panels
+                let (mc, nc) = (mc.div_ceil(mr) * mr, nc.div_ceil(nr) * nr);
+                Ok(Plan { isa, mr, nr, kc, mc, nc, kernel })
+            }
+            _ => Err(Error::arg("gemm", format!("no {} micro-kernel of {mr} x {nr} (or zero block sizes)", isa.name()))),
+        }
+    }
+
+    /// The depth of the K blocks of a product of depth k: KC, or less so that the blocks are equal
+    /// (3168 = 5 x 640 rather than 4 x 768 + 96), a multiple of 8.
+    pub fn kc_for(&self, k: usize) -> usize {
+        // ceil(k / blocks) rounded up to 8, blocks = ceil(k / KC)
+        k.div_ceil(k.div_ceil(self.kc).max(1)).next_multiple_of(8).clamp(8, self.kc.max(8))
+    }
+
+    /// The width of the column blocks of a product with n columns: NC, or less so that the blocks
+    /// are equal in whole micro-panels (768 = 3 x 256 rather than 2 x 336 + 96).
+    pub fn nc_for(&self, n: usize) -> usize {
+        // ceil(n / blocks) rounded up to NR, blocks = ceil(n / NC)
+        n.div_ceil(n.div_ceil(self.nc).max(1)).next_multiple_of(self.nr).min(self.nc)
+    }
+
+    /// "avx512 8x48 KC=768 MC=4096 NC=336".
+    pub fn describe(&self) -> String {
+        format!("{} {}x{} KC={} MC={} NC={}", self.isa.name(), self.mr, self.nr, self.kc, self.mc, self.nc)
+    }
+}
+
+/// Most rows of a micro-tile (the size of the bias buffer of an edge tile).
+const MAX_MR: usize = 16;
+
+/// One 64-byte aligned line: the unit of the packing buffers.
+#[repr(C, align(64))]
+#[derive(Clone, Copy)]
+struct Line([u8; 64]);
+
+thread_local! {
+    /// This thread's packing buffers (A panels, B panels), reused across calls.
+    static BUFS: RefCell<(Vec<Line>, Vec<Line>)> = const { RefCell::new((Vec::new(), Vec::new())) };
+}
+
+/// Runs `f` on this thread's packing buffers of at least `a` and `b` bytes (a fresh pair if the
+/// thread's are in use by an outer call).
+fn with_bufs<R>(a: usize, b: usize, f: impl FnOnce(*mut u8, *mut u8) -> R) -> R {
+    let lines = |bytes: usize| bytes.div_ceil(64) + 1;
+    BUFS.with(|bufs| match bufs.try_borrow_mut() {
+        Ok(mut bufs) => {
+            let (pa, pb) = &mut *bufs;
+            if pa.len() < lines(a) {
+                pa.resize(lines(a), Line([0; 64]));
+            }
+            if pb.len() < lines(b) {
+                pb.resize(lines(b), Line([0; 64]));
+            }
+            f(pa.as_mut_ptr().cast(), pb.as_mut_ptr().cast())
+        }
+        Err(_) => {
+            let (mut pa, mut pb) = (vec![Line([0; 64]); lines(a)], vec![Line([0; 64]); lines(b)]);
+            f(pa.as_mut_ptr().cast(), pb.as_mut_ptr().cast())
+        }
+    })
+}
+
+/// C (m x n at `c`, strides rsc, csc) <- init + A·B, then ReLU when `relu`: the packed GEMM on the
+/// calling thread. `init` starts the chains of the first K block: `Zero`, `Load` (C itself) or
+/// `Bias(b)` with b[i] for row i (m values).
+///
+/// Loop order: A is packed for all of K, MC' rows at a time (MC' x K holds as many elements as the
+/// plan's MC x KC); then for each NC block of columns, for each KC block of depth: B packed (L2),
+/// then every A micro-panel (L1) against every B micro-panel. The C block (MC' x NC) stays in
+/// cache across the K blocks.
+///
+/// # Safety
+/// `a` has m rows and `b` n columns over depth k; C is valid, writable, and aliases neither.
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize, a: SourceA<E>, b: &dyn PackB<E>,
+                                   c: *mut E, rsc: isize, csc: isize, init: Init<E>, relu: bool) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    let (mr, nr, es) = (plan.mr, plan.nr, std::mem::size_of::<E>());
+    // rows of A packed at a time: MC' = MC·KC / K whole panels (all rows when prepacked)
+    let chunk = match a {
+        SourceA::Packed(_) => m,
+        SourceA::Strided(_) => (plan.mc * plan.kc / k.max(1) / mr * mr).max(mr).min(m),
+    };
+    let a_len = match a {
+        SourceA::Packed(_) => 0,
+        SourceA::Strided(_) => chunk.div_ceil(mr) * mr * k.max(1),
+    };
+    // equal K blocks of kcb and column blocks of ncb (the chains do not depend on them)
+    let (kcb, ncb) = (plan.kc_for(k), plan.nc_for(n));
+    let (kc_max, nc_max) = (kcb.min(k.max(1)), ncb.min(n.div_ceil(nr) * nr));
+    with_bufs(a_len * es, nc_max * kc_max * es, |pa, pb| {
+        let (pa, pb) = (pa.cast::<E>(), pb.cast::<E>());
+        for ic in (0..m).step_by(chunk) {
+            let mc = chunk.min(m - ic);
+            let (apack, mpad) = match a {
+                SourceA::Packed(p) => (p.data(plan).expect("gemm: A prepacked for another plan"), p.mpad),
+                SourceA::Strided(s) => {
+                    // SAFETY: `pa` has room for the chunk's panels over all of K.
+                    unsafe { s.pack_rows(plan, ic, mc, pa) };
+                    (pa.cast_const(), mc.div_ceil(mr) * mr)
+                }
+            };
+            for jc in (0..n).step_by(ncb) {
+                let nc = ncb.min(n - jc);
+                // k = 0 still runs one empty block: it writes the initial values (and the ReLU)
+                for p0 in (0..k.max(1)).step_by(kcb) {
+                    let kc = kcb.min(k - p0.min(k));
+                    let block_init = if p0 == 0 { init } else { Init::Load };
+                    let last = p0 + kc >= k;
+                    // B block row stride: nc rounded up to NR (the last micro-tile reads NR columns)
+                    let ldb = nc.div_ceil(nr) * nr;
+                    b.pack(plan, p0, kc, jc, nc, pb, ldb);
+                    for ir in (0..mc).step_by(mr) {
+                        // A micro-panel of rows ic + ir..: K block p0 at p0·mpad, panel ir / MR of kc·MR
+                        let ap = apack.wrapping_add(p0 * mpad + ir * kc);
+                        let rows = mr.min(mc - ir);
+                        let init = match block_init {
+                            // bias of rows ic + ir..
+                            Init::Bias(bias) => Init::Bias(bias.wrapping_add(ic + ir)),
+                            other => other,
+                        };
+                        for jr in (0..nc).step_by(nr) {
+                            // C tile (ic + ir, jc + jr): c + (ic + ir)·rsc + (jc + jr)·csc
+                            let ct = c.wrapping_offset((ic + ir) as isize * rsc + (jc + jr) as isize * csc);
+                            // the next tile along the row, or the first of the next row of tiles
+                            let next = if jr + nr < nc { ct.wrapping_offset(nr as isize * csc) } else {
+                                c.wrapping_offset((ic + ir + mr) as isize * rsc + jc as isize * csc)
+                            };
+                            let tile = Tile { c: ct, ldc: rsc, init, relu: relu && last, next };
+                            let cols = nr.min(nc - jr);
+                            // B columns jr.. of the block
+                            let bp = pb.wrapping_add(jr);
+                            // SAFETY: both micro-panels lie in packed storage; a full tile with unit
+                            // column stride is valid C; an edge tile goes through a local buffer.
+                            unsafe {
+                                if rows == mr && cols == nr && csc == 1 {
+                                    (plan.kernel)(kc, ap, bp, ldb, &tile);
+                                } else {
+                                    edge(plan, kc, ap, bp, ldb, &tile, rows, cols, csc);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    });
+}
+
+/// A tile of `rows` x `cols` (< MR x NR, or C with non-unit column stride): the micro-kernel runs on
+/// a local MR x NR buffer, copied from C first when the chain continues from C, and back after.
+///
+/// # Safety
+/// As for a full tile, for the rows x cols part of C that exists.
+#[allow(clippy::too_many_arguments)]
+unsafe fn edge<E: Float>(plan: &Plan<E>, kc: usize, ap: *const E, bp: *const E, ldb: usize, t: &Tile<E>, rows: usize,
+                         cols: usize, csc: isize) {
+    let (mr, nr) = (plan.mr, plan.nr);
+    // written before it is read: by the kernel (Zero, Bias) or zeroed and copied from C here (Load)
+    let mut buf = std::mem::MaybeUninit::<[Line; TILE_BYTES / 64]>::uninit();
+    let bufp = buf.as_mut_ptr().cast::<E>();
+    let mut bias = [E::zero(); MAX_MR];
+    // element (i, j) of the C tile: c + i·ldc + j·csc
+    let cij = |i: usize, j: usize| t.c.wrapping_offset(i as isize * t.ldc + j as isize * csc);
+    // SAFETY: i < rows and j < cols stay inside C; the buffer holds MR·NR <= TILE_BYTES / es elements.
+    unsafe {
+        let init = match t.init {
+            Init::Load => {
+                for i in 0..mr {
+                    for j in 0..nr {
+                        // buf[i·NR + j] = C(i, j) inside C, 0 outside
+                        *bufp.add(i * nr + j) = if i < rows && j < cols { *cij(i, j) } else { E::zero() };
+                    }
+                }
+                Init::Load
+            }
+            Init::Bias(b) => {
+                bias[..rows].copy_from_slice(std::slice::from_raw_parts(b, rows));
+                Init::Bias(bias.as_ptr())
+            }
+            Init::Zero => Init::Zero,
+        };
+        let local = Tile { c: bufp, ldc: nr as isize, init, relu: t.relu, next: t.next };
+        (plan.kernel)(kc, ap, bp, ldb, &local);
+        for i in 0..rows {
+            for j in 0..cols {
+                *cij(i, j) = *bufp.add(i * nr + j);
+            }
+        }
+    }
+}
+
+/// `dst[p·rows + r]` = `src[r·cols + p]`: the transpose of a row-major rows x cols matrix (packed
+/// like a B block, by 8 x 8 register transposes where the plan allows).
+pub(crate) fn transpose<E: Float>(plan: &Plan<E>, src: &[E], rows: usize, cols: usize, dst: &mut [E]) {
+    assert!(src.len() >= rows * cols && dst.len() >= rows * cols, "transpose: buffers too small");
+    // depth p along the unit stride of src, index r along its rows
+    // SAFETY: both buffers hold rows·cols elements (checked above).
+    unsafe { pack::panel(plan, cols, rows, rows, src.as_ptr(), cols as isize, 1, E::one(), dst.as_mut_ptr()) };
+}
+
+/// What follows the product in [`gemm_ex`]: a bias per row of C, then ReLU.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Epilogue<'a, E> {
+    /// Added to row i of C (m values); only with beta = 0.
+    pub bias: Option<&'a [E]>,
+    pub relu: bool,
+}
+
+/// C <- alpha · A·B + beta · C for strided 2-D views, on the calling thread, on the selected path.
+///
+/// Shapes are internal invariants of the calling kernel (validated before), so a mismatch is a bug
+/// and panics rather than corrupting memory.
+pub fn gemm<F: Float>(alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F, c: ArrayViewMut2<F>) {
+    gemm_ex(Plan::selected(), alpha, a, b, beta, c, Epilogue::default());
+}
+
+/// [`gemm`] on an explicit plan (any ISA path), followed by an epilogue.
+pub fn gemm_ex<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F, mut c: ArrayViewMut2<F>,
+                         epi: Epilogue<F>) {
+    let (m, k) = a.dim();
+    let (k2, n) = b.dim();
+    assert!(k == k2 && c.dim() == (m, n), "gemm: inner dims {k} vs {k2}, C {:?} vs ({m},{n})", c.dim());
+    assert!(epi.bias.is_none_or(|b| b.len() == m && beta == F::zero()), "gemm: bias needs m values and beta 0");
+    if m == 0 || n == 0 {
+        return;
+    }
+    let init = if let Some(bias) = epi.bias {
+        Init::Bias(bias.as_ptr())
+    } else if beta == F::zero() {
+        Init::Zero
+    } else {
+        if beta != F::one() {
+            c.mapv_inplace(|v| beta * v);
+        }
+        Init::Load
+    };
+    let (sa, sb, sc) = (a.strides(), b.strides(), c.strides().to_vec());
+    let a = Strided { ptr: a.as_ptr(), rows: m, cols: k, rs: sa[0], cs: sa[1], scale: alpha };
+    let b = Strided { ptr: b.as_ptr(), rows: k, cols: n, rs: sb[0], cs: sb[1], scale: F::one() };
+    // SAFETY: the views own valid memory of the checked shapes; C is a unique mutable view, so it
+    // aliases neither A nor B; the bias has m values.
+    unsafe { run(plan, m, n, k, SourceA::Strided(&a), &b, c.as_mut_ptr(), sc[0], sc[1], init, epi.relu) };
+}
+
 /// Same as [`gemm`], with C split into column blocks (or row blocks when C is tall) that rayon
-/// computes in parallel. Each block is an independent GEMM, so the result is deterministic.
-pub fn gemm_par<F: Float>(alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F, mut c: ArrayViewMut2<F>) {
+/// computes in parallel. Each element's chain is the same whatever the split.
+pub fn gemm_par<F: Float>(alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F, c: ArrayViewMut2<F>) {
+    gemm_par_with(Plan::selected(), alpha, a, b, beta, c)
+}
+
+/// [`gemm_par`] on an explicit plan.
+pub fn gemm_par_with<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F,
+                               mut c: ArrayViewMut2<F>) {
     let (m, n) = c.dim();
     let threads = rayon::current_num_threads();
     let flops = m * n * a.ncols();
+    let one = |a, b, c| gemm_ex(plan, alpha, a, b, beta, c, Epilogue::default());
     if threads <= 1 || flops < (1 << 20) {
-        return gemm(alpha, a, b, beta, c);
+        return one(a, b, c);
     }
-    // Blocks of at least 64 columns (or rows) keep each thread's packed panels full.
+    // blocks of whole micro-tiles, so no thread computes a partial panel it could have avoided
     if n >= m {
-        let block = n.div_ceil(threads).max(64);
+        let block = n.div_ceil(threads).next_multiple_of(plan.nr);
         c.axis_chunks_iter_mut(Axis(1), block)
             .into_par_iter()
             .zip(b.axis_chunks_iter(Axis(1), block).into_par_iter())
-            .for_each(|(cb, bb)| gemm(alpha, a, bb, beta, cb));
+            .for_each(|(cb, bb)| one(a, bb, cb));
     } else {
-        let block = m.div_ceil(threads).max(64);
+        let block = m.div_ceil(threads).next_multiple_of(plan.mr);
         c.axis_chunks_iter_mut(Axis(0), block)
             .into_par_iter()
             .zip(a.axis_chunks_iter(Axis(0), block).into_par_iter())
-            .for_each(|(cb, ab)| gemm(alpha, ab, b, beta, cb));
+            .for_each(|(cb, ab)| one(ab, b, cb));
     }
 }

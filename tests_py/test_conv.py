@@ -130,3 +130,76 @@ def test_gemm_fwd_matches_numpy_and_checks_shapes():
     a, b = rand((70, 33)), rand((33, 90), seed=1)
     np.testing.assert_allclose(_core.gemm_fwd(a, b), a @ b, rtol=1e-5, atol=1e-5)
     _raises(r"gemm: a\.shape\[1\] must equal b\.shape\[0\].*\[70, 33\].*\[34, 90\]", lambda: _core.gemm_fwd(a, rand((34, 90))))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("case", ["3x3_p1", "1x1", "7x7_s2_p3_odd", "1x5_p0_2"])
+def test_conv2d_relu_matches_torch_and_the_two_ops(case, dtype):
+    xs, ws, stride, padding = CASES[case]
+    inputs = _inputs(xs, ws)
+    check_op(inputs, lambda x, w, b: F.relu(F.conv2d(x, w, b, stride, padding)),
+             lambda x, w, b: M.conv2d_relu(x, w, b, stride, padding), dtype=dtype)
+    x, w, b = (a.astype(dtype) for a in inputs)
+    # the epilogue's ReLU is the relu op on the same sums: bitwise equal
+    np.testing.assert_array_equal(M.conv2d_relu(x, w, b, stride, padding).numpy(),
+                                  M.relu(M.conv2d(x, w, b, stride, padding)).numpy())
+
+
+# Run in a subprocess with MIPNET_ISA set: float32 conv2d forward and gradients (and a GEMM) on the
+# forced path against torch in float64. Prints the path the process used.
+_FORCED_ISA_SCRIPT = r"""
+import numpy as np, torch
+import mipnet, mipnet.ops as M
+from mipnet import _core
+F = torch.nn.functional
+rng = np.random.default_rng(0)
+print(_core.cpu_info()["isa"])
+worst = 0.0
+for xs, ws, stride, pad in [((2, 16, 13, 11), (24, 16, 3, 3), 1, 1), ((1, 3, 17, 15), (8, 3, 7, 7), 2, 3),
+                            ((2, 9, 7, 10), (5, 9, 1, 1), 1, 0), ((2, 6, 5, 11), (4, 6, 1, 5), 1, (0, 2))]:
+    x = rng.standard_normal(xs).astype(np.float32)
+    w = (rng.standard_normal(ws) / np.sqrt(np.prod(ws[1:]))).astype(np.float32)
+    b = rng.standard_normal(ws[:1]).astype(np.float32)
+    ts = [torch.tensor(a, dtype=torch.float64, requires_grad=True) for a in (x, w, b)]
+    ref = F.conv2d(*ts, stride=stride, padding=pad)
+    g = rng.uniform(-1, 1, ref.shape)
+    ref.backward(torch.tensor(g))
+    ms = [mipnet.tensor(a, requires_grad=True) for a in (x, w, b)]
+    out = M.conv2d(*ms, stride=stride, padding=pad)
+    out.backward(g.astype(np.float32))
+    for ours, theirs in [(out, ref)] + [(m.grad, t.grad) for m, t in zip(ms, ts)]:
+        err = np.abs(ours.numpy().astype(np.float64) - theirs.detach().numpy()).max()
+        scale = 1.0 + np.abs(theirs.detach().numpy()).max()
+        worst = max(worst, err / scale)
+a = rng.standard_normal((67, 301)).astype(np.float32)
+c = rng.standard_normal((301, 53)).astype(np.float32)
+worst = max(worst, np.abs(_core.gemm_fwd(a, c) - a.astype(np.float64) @ c).max() / 30.0)
+print(worst)
+"""
+
+
+def _run_forced(isa: str):
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "MIPNET_ISA": isa}
+    return subprocess.run([sys.executable, "-c", _FORCED_ISA_SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("isa", ["avx2", "generic"])
+def test_forced_isa_path_matches_float64_reference(isa):
+    # CI forces each non-default path once through MIPNET_ISA and checks it against float64
+    if isa not in _core.cpu_info()["isa_supported"]:
+        pytest.skip(f"this CPU has no {isa}")
+    res = _run_forced(isa)
+    assert res.returncode == 0, res.stderr
+    used, worst = res.stdout.split()
+    assert used == isa
+    assert float(worst) < 1e-5, f"{isa}: relative error {worst}"
+
+
+def test_invalid_forced_isa_is_refused_at_import():
+    res = _run_forced("avx1024")
+    assert res.returncode != 0
+    assert "ImportError" in res.stderr and "MIPNET_ISA" in res.stderr and "avx512, avx2, generic" in res.stderr

@@ -1,8 +1,10 @@
-//! conv2d: forward against a direct sum and a closed form, f64 gradchecks of every gradient, thread-count
-//! independence, layouts, and the errors.
+//! conv2d: forward against a direct sum and a closed form, f64 gradchecks of every gradient, every ISA
+//! path (forced through the plan argument) against f64, the fused ReLU, thread-count independence,
+//! layouts, and the errors.
 mod common;
 
-use _core::ops::conv::{conv2d_bwd, conv2d_fwd, Conv2dCfg, Conv2dNeed};
+use _core::gemm::Isa;
+use _core::ops::conv::{conv2d_bwd, conv2d_bwd_ex, conv2d_fwd, conv2d_fwd_ex, Conv2dCfg, Conv2dNeed};
 use common::{dot, gradcheck, max_abs_diff, Rng};
 use ndarray::{ArrayD, Ix4, IxDyn};
 
@@ -335,5 +337,66 @@ fn gemm_f32_matches_f64_product_for_layouts_edges_and_beta() {
             gemm(1.0f32, a.view(), b.view(), 0.0, cn.view_mut());
             assert!(cn.iter().all(|v| v.is_finite()), "{m}x{k}x{n}: NaN leaked through beta 0");
         }
+    }
+}
+
+#[test]
+fn conv2d_pixel_major_weight_grad_for_strides_and_separable_kernels_gradcheck_f64() {
+    // Cin >= 16 takes dW's pixel-major path: stride 2 (the downsampling resblocks), 1x5 / 5x1 (SepConvGRU)
+    gradcheck_case("3x3 s2 16ch", [2, 16, 9, 11], [5, 16, 3, 3], Conv2dCfg::new([2, 2], [1, 1]), 25);
+    gradcheck_case("1x5 p(0,2) 20ch", [1, 20, 6, 13], [4, 20, 1, 5], Conv2dCfg::new([1, 1], [0, 2]), 26);
+    gradcheck_case("5x1 p(2,0) 20ch", [1, 20, 13, 6], [4, 20, 5, 1], Conv2dCfg::new([1, 1], [2, 0]), 27);
+}
+
+/// f32 forward and gradients of `case` on one ISA path against the f64 direct computation.
+fn isa_case(isa: Isa, (name, xs, ws, stride, padding): Case, seed: u64) {
+    use _core::gemm::Plan;
+    let plan = Plan::<f32>::for_isa(isa).unwrap();
+    let plan64 = Plan::<f64>::for_isa(isa).unwrap();
+    let cfg = Conv2dCfg::new(stride, padding);
+    let mut rng = Rng::new(seed);
+    let (x, w, b) = inputs(&mut rng, &xs, &ws);
+    let g = rng.array(&conv_ref(&x, &w, None, &cfg).shape().to_vec(), -1.0, 1.0);
+    let f32v = |a: &ArrayD<f64>| a.mapv(|v| v as f32);
+    let (x32, w32, b32, g32) = (f32v(&x), f32v(&w), f32v(&b), f32v(&g));
+    let y = conv2d_fwd_ex(x32.view(), w32.view(), Some(b32.view()), &cfg, false, plan).unwrap().into_dyn().mapv(f64::from);
+    let err = max_abs_diff(&y, &conv_ref(&x, &w, Some(&b), &cfg));
+    assert!(err < 1e-4, "{} {name} fwd: err {err}", isa.name());
+    // f32 gradients against the f64 ones of the same path (checked by the f64 gradchecks)
+    let g32s = conv2d_bwd_ex(x32.view(), w32.view(), g32.view(), &cfg, Conv2dNeed::ALL, plan).unwrap();
+    let g64s = conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, plan64).unwrap();
+    let close = |a: ArrayD<f32>, b: ArrayD<f64>, what: &str| {
+        let err = max_abs_diff(&a.mapv(f64::from), &b);
+        assert!(err < 1e-3, "{} {name} {what}: err {err}", isa.name());
+    };
+    close(g32s.x.unwrap().into_dyn(), g64s.x.unwrap().into_dyn(), "dx");
+    close(g32s.w.unwrap().into_dyn(), g64s.w.unwrap().into_dyn(), "dw");
+    close(g32s.b.unwrap().into_dyn(), g64s.b.unwrap().into_dyn(), "db");
+    // the f64 path itself: forward against the direct sum, and one gradcheck of its backward
+    let y64 = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, false, plan64).unwrap().into_dyn();
+    let err = max_abs_diff(&y64, &conv_ref(&x, &w, Some(&b), &cfg));
+    assert!(err < 1e-12, "{} {name} f64 fwd: err {err}", isa.name());
+}
+
+#[test]
+fn conv2d_every_isa_path_matches_f64_forced_through_the_plan_argument() {
+    for isa in Isa::ALL.into_iter().filter(|i| i.supported()) {
+        for (i, &case) in [CASES[0], CASES[2], CASES[4], CASES[6], CASES[12]].iter().enumerate() {
+            isa_case(isa, case, 40 + i as u64);
+        }
+    }
+}
+
+#[test]
+fn conv2d_fused_relu_equals_relu_of_conv_bitwise() {
+    use _core::gemm::Plan;
+    let mut rng = Rng::new(50);
+    for &(name, xs, ws, stride, padding) in &[CASES[2], CASES[4], CASES[12]] {
+        let cfg = Conv2dCfg::new(stride, padding);
+        let (x, w, b) = inputs(&mut rng, &xs, &ws);
+        let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
+        let plain = conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap().mapv(|v| v.max(0.0));
+        let fused = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, true, Plan::selected()).unwrap();
+        assert_eq!(plain, fused, "{name}");
     }
 }

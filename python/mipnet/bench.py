@@ -2,14 +2,16 @@
 
 Usage::
 
-    python -m mipnet.bench ops [--threads 2] [--repeat 15] [--warmup 1] [--filter conv] [--peak 230]
+    python -m mipnet.bench ops [--threads 2] [--repeat 15] [--warmup 1] [--filter conv] [--peak GFLOPS]
     python -m mipnet.bench model [--threads 2] [--sizes 384x512 1088x1920] [--train-size 384x512]
 
 ``ops`` times each kernel row (forward, or forward + backward) with mipnet and with torch and prints
 a table: op, shape, mipnet ms and torch ms (medians of runs in alternating blocks, each after a
-warm-up), their ratio, and for rows with a FLOP count the achieved GFLOP/s and the share of
-``--peak`` GFLOP/s. torch is needed for the comparison; without it the command says so and exits
-with status 1.
+warm-up), their ratio, and for rows with a FLOP count the achieved GFLOP/s and its share of the FMA
+peak. The header names the CPU, the ISA path and GEMM plan mipnet runs, and the peak measured at
+start (``_core.fma_peak_gflops``: independent FMA chains on one core and on ``--threads`` threads);
+``--peak`` replaces the measured figure. torch is needed for the comparison; without it the
+command says so and exits with status 1.
 
 Adding a row is one line in :func:`ops_cases`: a :class:`BenchCase` with a name, a shape string, a
 function making the numpy inputs, and the mipnet and torch calls taking one tensor per input.
@@ -67,17 +69,18 @@ def _randn(*shape: int) -> Callable[[np.random.Generator], np.ndarray]:
     return lambda rng: rng.standard_normal(shape, dtype=np.float32)
 
 
-def conv_case(n: int, cin: int, cout: int, h: int, w: int, k: int, stride: int = 1, backward: bool = False,
-              torch: Any = None) -> BenchCase:
-    """A conv2d row: k x k kernel, padding k // 2, with bias."""
-    pad = k // 2
-    ho, wo = (h + 2 * pad - k) // stride + 1, (w + 2 * pad - k) // stride + 1
-    fwd_flops = 2.0 * n * cout * cin * k * k * ho * wo
+def conv_case(n: int, cin: int, cout: int, h: int, w: int, k: int | tuple[int, int], stride: int = 1,
+              backward: bool = False, torch: Any = None) -> BenchCase:
+    """A conv2d row: k x k (or kh x kw) kernel, padding k // 2 per axis, with bias."""
+    kh, kw = (k, k) if isinstance(k, int) else k
+    pad = (kh // 2, kw // 2)
+    ho, wo = (h + 2 * pad[0] - kh) // stride + 1, (w + 2 * pad[1] - kw) // stride + 1
+    fwd_flops = 2.0 * n * cout * cin * kh * kw * ho * wo
     F = torch.nn.functional
     return BenchCase(
-        f"conv2d {k}x{k}" + (f" s{stride}" if stride != 1 else "") + (" fwd+bwd" if backward else " fwd"),
+        f"conv2d {kh}x{kw}" + (f" s{stride}" if stride != 1 else "") + (" fwd+bwd" if backward else " fwd"),
         f"N={n} {cin}->{cout} {h}x{w}",
-        lambda rng: [_randn(n, cin, h, w)(rng), _randn(cout, cin, k, k)(rng) * np.float32(0.05), _randn(cout)(rng)],
+        lambda rng: [_randn(n, cin, h, w)(rng), _randn(cout, cin, kh, kw)(rng) * np.float32(0.05), _randn(cout)(rng)],
         lambda x, wt, b: M.conv2d(x, wt, b, stride=stride, padding=pad),
         lambda x, wt, b: F.conv2d(x, wt, b, stride=stride, padding=pad),
         backward=backward,
@@ -149,14 +152,15 @@ def ops_cases(torch: Any) -> list[BenchCase]:
     return [
         BenchCase("sgemm (gemm.rs)", f"{m}x{k} @ {k}x{n}", lambda rng: [_randn(m, k)(rng), _randn(k, n)(rng)],
                   lambda a, b: _core.gemm_fwd(a.numpy(), b.numpy()), torch.matmul, flops=2.0 * m * k * n),
-        conv_case(2, 128, 128, 96, 128, 3, torch=torch),
-        conv_case(2, 128, 128, 96, 128, 3, backward=True, torch=torch),
-        conv_case(4, 128, 128, 96, 128, 3, torch=torch),
-        conv_case(4, 128, 128, 96, 128, 3, backward=True, torch=torch),
-        conv_case(2, 352, 128, 24, 32, 3, torch=torch),
-        conv_case(2, 352, 128, 24, 32, 3, backward=True, torch=torch),
-        conv_case(2, 3, 64, 384, 512, 7, stride=2, torch=torch),
-        conv_case(2, 3, 64, 384, 512, 7, stride=2, backward=True, torch=torch),
+        # the model's convolutions at 384x512: encoder and GRU at 1/4 (96x128), ConvGRU at 1/16, heads, stem
+        *(conv_case(2, 128, 128, 96, 128, 3, backward=bwd, torch=torch) for bwd in (False, True)),
+        *(conv_case(4, 128, 128, 96, 128, 3, backward=bwd, torch=torch) for bwd in (False, True)),
+        *(conv_case(1, 128, 256, 96, 128, 3, backward=bwd, torch=torch) for bwd in (False, True)),
+        *(conv_case(2, 352, 128, 24, 32, 3, backward=bwd, torch=torch) for bwd in (False, True)),
+        *(conv_case(2, 384, 128, 96, 128, (1, 5), backward=bwd, torch=torch) for bwd in (False, True)),
+        *(conv_case(2, 384, 128, 96, 128, (5, 1), backward=bwd, torch=torch) for bwd in (False, True)),
+        *(conv_case(1, 256, 144, 96, 128, 1, backward=bwd, torch=torch) for bwd in (False, True)),
+        *(conv_case(2, 3, 64, 384, 512, 7, stride=2, backward=bwd, torch=torch) for bwd in (False, True)),
         *stereo_cases(torch),
     ]
 
@@ -206,9 +210,27 @@ def _runner(case: BenchCase, inputs: list[np.ndarray], lib: str, torch: Any) -> 
     return run
 
 
+def machine_header(threads: int, peak: float | None = None) -> tuple[str, float]:
+    """The lines naming the CPU, mipnet's ISA path and GEMM plan and the FMA peak, and the peak
+    (GFLOP/s on `threads` threads) the GFLOP/s rows are a share of: measured unless `peak` is given."""
+    info = _core.cpu_info()
+    one = _core.fma_peak_gflops(1)
+    many = _core.fma_peak_gflops(threads) if threads > 1 else one
+    used = many if peak is None else peak
+    caches = f"L1d {info['l1d'] >> 10} KiB, L2 {info['l2'] >> 10} KiB ({info['cache_source']})"
+    lines = [
+        f"CPU: {info['model']} ({info['vendor']}); {caches}",
+        f"ISA: {info['isa']} (supported: {', '.join(info['isa_supported'])}); GEMM plan {info['plan']}",
+        f"FMA peak measured: {one:.0f} GFLOP/s on 1 core, {many:.0f} on {threads} threads"
+        + ("" if peak is None else f"; rows use --peak {peak:g}"),
+    ]
+    return "\n".join(lines), used
+
+
 def run_ops(args: argparse.Namespace, torch: Any) -> int:
     cases = [c for c in ops_cases(torch) if not args.filter or args.filter in f"{c.name} {c.shape_str}"]
-    header = ["op", "shape", "mipnet ms", "torch ms", "ratio", "GFLOP/s", f"% of {args.peak:g}"]
+    header_text, peak = machine_header(args.threads, args.peak)
+    header = ["op", "shape", "mipnet ms", "torch ms", "ratio", "GFLOP/s", f"% of {peak:.0f}"]
     rows = []
     for case in cases:
         inputs = case.make_inputs(np.random.default_rng(0))
@@ -216,10 +238,11 @@ def run_ops(args: argparse.Namespace, torch: Any) -> int:
                                   args.warmup, args.repeat)
         gflops = case.flops / ours / 1e6 if case.flops else None
         rows.append([case.name, case.shape_str, f"{ours:.2f}", f"{theirs:.2f}", f"{ours / theirs:.2f}",
-                     "" if gflops is None else f"{gflops:.0f}", "" if gflops is None else f"{100 * gflops / args.peak:.0f}%"])
+                     "" if gflops is None else f"{gflops:.0f}", "" if gflops is None else f"{100 * gflops / peak:.0f}%"])
         print(f"  done: {case.name} {case.shape_str}", file=sys.stderr, flush=True)
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
     line = lambda r: "  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths)))  # noqa: E731
+    print(header_text)
     print(f"threads={args.threads}  (median of {args.repeat} runs in 3 alternating blocks, each after {args.warmup} warm-up; ratio = mipnet / torch)")
     print(line(header))
     print("  ".join("-" * w for w in widths))
@@ -236,7 +259,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ops.add_argument("--repeat", type=int, default=15, help="timed runs per row and library (default 15)")
     ops.add_argument("--warmup", type=int, default=1, help="untimed runs before each block (default 1)")
     ops.add_argument("--filter", default="", help="only rows whose op or shape contains this text")
-    ops.add_argument("--peak", type=float, default=230.0, help="GFLOP/s taken as 100%% (default 230)")
+    ops.add_argument("--peak", type=float, default=None,
+                     help="GFLOP/s taken as 100%% (default: the FMA peak measured on --threads threads)")
     model = sub.add_parser("model", help="whole-network timings and peak memory against the torch reference")
     model.add_argument("--threads", type=int, default=2, help="threads for mipnet and torch (default 2)")
     model.add_argument("--sizes", nargs="+", default=["384x512", "1088x1920"], help="eval sizes HxW")

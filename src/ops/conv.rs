@@ -1,27 +1,28 @@
 //! Convolution: 2-D cross-correlation with any kernel size, any stride, per-axis zero padding and an
-//! optional bias, computed as tiled im2col + GEMM.
+//! optional bias (and optionally a ReLU), computed as GEMMs over im2col columns that are never stored.
 //!
 //! | op | forward | backward (grads to) |
 //! |---|---|---|
 //! | conv2d | `conv2d_fwd`: `Y[n]` = W · cols(`x[n]`) + b | `conv2d_bwd`: dX = col2im(Wᵀ · dY), dW = Σ dY · colsᵀ, db = Σ dY |
 //!
 //! W is the matrix `[Cout, K]` with K = Cin·kh·kw, and cols(`x[n]`) the matrix `[K, Ho·Wo]` whose column p
-//! holds the receptive field of output pixel p. It is never built whole (a 3x3 352->128 conv at
-//! 272x480 would need 1.6 GB): a task builds the columns of one range of output pixels (a tile) in
-//! its thread's scratch buffer of at most `SCRATCH_BYTES` (more only when one K x `MIN_TILE`
-//! block is larger). A 1x1, stride-1, unpadded conv uses `x[n]` itself as cols. Every result is
-//! deterministic and independent of the number of threads:
-//! - forward: tasks (image, tile); cols are built `CHUNK_ROWS` rows (whole channels) at a time,
-//!   each block added by `Y[n][:, tile]` += `W[:, block]` · `cols[block, tile]` while it is in cache;
-//! - dX: tasks (image, input-channel chunk), each owning `dX[n, chunk]` and running over the tiles in
-//!   order (in bands of `BAND_BYTES` of dY shared by all tasks): dcols = `W[:, chunk]ᵀ` · `dY[n][:, tile]`,
-//!   scattered back by col2im;
-//! - dW: the (image, tile) list is cut into `DW_GROUPS` contiguous groups fixed by the shapes; each
-//!   group sums dY·colsᵀ over its tiles with one GEMM per tile (cols for all of K) into its own
-//!   partial, and the partials are added in group order;
+//! holds the receptive field of output pixel p. cols is never built whole (a 3x3 352->128 conv at
+//! 272x480 would need 1.6 GB). Every result is deterministic and independent of the number of
+//! threads (every output element is one chain of the GEMM, see `gemm.rs`):
+//! - forward: tasks (image, tile of output pixels), one GEMM each with W packed once per call and
+//!   shared; the GEMM's B blocks are filled by im2col straight from x (`Im2colB`), or are x itself
+//!   for a pointwise conv; the bias starts the chains and the ReLU runs in the GEMM's epilogue;
+//! - dX: for stride 1 with padding below the kernel size, itself a forward conv of dY with the
+//!   flipped, transposed weights (`input_grad_as_conv`); otherwise tasks (image, input-channel
+//!   chunk), each owning `dX[n, chunk]` and running over the tiles in order (in bands of
+//!   `BAND_BYTES` of dY shared by all tasks): dcols = `W[:, chunk]ᵀ` · `dY[n][:, tile]`, scattered
+//!   back by col2im;
+//! - dW: `DW_GROUPS` partial sums fixed by the shapes, added in group order; B built from x in
+//!   pixel-major layout with tap-major K (`NhwcColsT`), or from cols tiles in scratch for few
+//!   input channels;
 //! - db: per output channel, Σ over images and pixels in order.
 
-use crate::gemm::gemm;
+use crate::gemm::{self, gemm_ex, Epilogue, Init, PackB, Plan, Prepacked, SourceA, Strided};
 use crate::tensor::{check_nonempty, fixed};
 use crate::{Error, Float, Result};
 use ndarray::{s, Array1, Array2, Array3, Array4, ArrayView, ArrayView2, ArrayViewD, ArrayViewMut2, Axis, CowArray, Dimension, Ix1, Ix4};
@@ -34,19 +35,15 @@ use std::thread::LocalKey;
 const OP: &str = "conv2d";
 /// Upper bound of one thread's im2col / col2im buffer.
 const SCRATCH_BYTES: usize = 4 << 20;
-/// Forward tasks wanted per thread, at least (more tiles mean more repacking of W).
-const TASKS_PER_THREAD: usize = 1;
 /// Fewest output pixels in a tile (below this the GEMM's packing overhead dominates).
 const MIN_TILE: usize = 64;
 /// Most output pixels in a tile.
 const MAX_TILE: usize = 1024;
-/// Tiles are a multiple of the AVX-512 GEMM micro-kernel's 48-column panel.
-const TILE_ALIGN: usize = 48;
 /// dY read per band of the input gradient (so that it is reused from cache by every channel chunk).
 const BAND_BYTES: usize = 2 << 20;
 /// Partial dW sums (the parallelism of the weight gradient; fixed, so dW does not depend on the threads).
 const DW_GROUPS: usize = 4;
-/// Rows (channels · taps, whole channels) of a forward cols block and of a dX task's dcols, about:
+/// Rows (channels · taps, whole channels) of a col2im dX task's dcols, about:
 /// small enough for the block to stay in L2 while the GEMM packs it.
 const CHUNK_ROWS: usize = 256;
 
@@ -179,13 +176,13 @@ fn layout(e: ndarray::ShapeError) -> Error {
 }
 
 /// Pixels per tile: at most what fits `rows` x tile in the scratch budget, at least `min_tiles`
-/// tiles per image, never below `MIN_TILE` (unless the image is smaller), a multiple of `TILE_ALIGN`.
-fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize) -> usize {
+/// tiles per image, never below `MIN_TILE` (unless the image is smaller), a multiple of `align`.
+fn tile_len<F>(pix: usize, rows: usize, min_tiles: usize, align: usize) -> usize {
     let budget = SCRATCH_BYTES / std::mem::size_of::<F>() / rows.max(1);
     let split = pix.div_ceil(min_tiles.max(1));
     let most = budget.min(split).clamp(MIN_TILE, MAX_TILE);
     // equal tiles: as few as `most` allows
-    pix.div_ceil(pix.div_ceil(most)).next_multiple_of(TILE_ALIGN).min(pix).max(1)
+    pix.div_ceil(pix.div_ceil(most)).next_multiple_of(align).min(pix).max(1)
 }
 
 /// The tiles of one image: consecutive ranges of `len` output pixels.
@@ -311,46 +308,88 @@ fn wrapped_cols(g: &Geom, kj: usize, tile: &Range<usize>, mut f: impl FnMut(Rang
 /// `cols[(c − c0)·kh·kw + ki·kw + kj, j]` = `x[c, oy·sh + ki − ph, ox·sw + kj − pw]` (0 in the padding)
 /// for the output pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), and c in `chans`.
 fn im2col<F: Float>(g: &Geom, xn: &[F], chans: Range<usize>, tile: Range<usize>, cols: &mut [F]) {
-    let (plane, len, sw) = (g.h * g.w, tile.len(), g.stride[1]);
-    let mut rows = cols.chunks_exact_mut(len);
+    let plane = g.h * g.w;
+    let mut rows = cols.chunks_exact_mut(tile.len());
     for c in chans {
         let xc = &xn[c * plane..(c + 1) * plane];
         for ki in 0..g.kh {
             for kj in 0..g.kw {
                 let Some(dst) = rows.next() else { return };
-                if let Some((d, span)) = shift_span(g, ki, kj, &tile) {
-                    // cols[r, j] = x_flat[p + d] on the span, 0 around it and on the wrapped columns
-                    let (a, b) = (span.start - tile.start, span.end - tile.start);
-                    dst[..a].fill(F::zero());
-                    dst[b..].fill(F::zero());
-                    if a < b {
-                        let src = (span.start as isize + d) as usize;
-                        dst[a..b].copy_from_slice(&xc[src..src + (b - a)]);
-                    }
-                    wrapped_cols(g, kj, &tile, |js| dst[js].fill(F::zero()));
-                    continue;
-                }
-                for_each_run(g, ki, kj, tile.clone(), |r| {
-                    let d = &mut dst[r.j0..r.j0 + r.lead + r.valid + r.trail];
-                    let (lead, rest) = d.split_at_mut(r.lead);
-                    let (mid, trail) = rest.split_at_mut(r.valid);
-                    lead.fill(F::zero());
-                    trail.fill(F::zero());
-                    if let Some(iy) = r.iy {
-                        // x row iy from column ix0, every sw-th element
-                        let src = &xc[iy * g.w + r.ix0..];
-                        if sw == 1 {
-                            mid.copy_from_slice(&src[..r.valid]);
-                        } else {
-                            // first element of each sw-wide chunk (a form the compiler vectorises),
-                            // then the last few taps whose chunk would run past the plane
-                            let whole = (src.len() / sw).min(r.valid);
-                            mid[..whole].iter_mut().zip(src.chunks_exact(sw)).for_each(|(m, c)| *m = c[0]);
-                            mid[whole..].iter_mut().zip(src[whole * sw..].iter().step_by(sw)).for_each(|(m, &v)| *m = v);
-                        }
-                    }
-                });
+                im2col_row(g, xc, ki, kj, &tile, dst);
             }
+        }
+    }
+}
+
+/// Zeroes a run that is usually empty or a single padding element (a library call only for longer ones).
+#[inline]
+fn zero<F: Float>(run: &mut [F]) {
+    match run {
+        [] => {}
+        [v] => *v = F::zero(),
+        _ => run.fill(F::zero()),
+    }
+}
+
+/// One row of cols: `dst[j]` = `xc[oy·sh + ki − ph, ox·sw + kj − pw]` (0 in the padding) for the output
+/// pixels p = tile.start + j, (oy, ox) = (p / Wo, p % Wo), of the tap (ki, kj) of one channel plane xc.
+fn im2col_row<F: Float>(g: &Geom, xc: &[F], ki: usize, kj: usize, tile: &Range<usize>, dst: &mut [F]) {
+    let sw = g.stride[1];
+    if let Some((d, span)) = shift_span(g, ki, kj, tile) {
+        // dst[j] = x_flat[p + d] on the span, 0 around it and on the wrapped columns
+        let (a, b) = (span.start - tile.start, span.end - tile.start);
+        zero(&mut dst[..a]);
+        zero(&mut dst[b..]);
+        if a < b {
+            let src = (span.start as isize + d) as usize;
+            dst[a..b].copy_from_slice(&xc[src..src + (b - a)]);
+        }
+        wrapped_cols(g, kj, tile, |js| zero(&mut dst[js]));
+        return;
+    }
+    for_each_run(g, ki, kj, tile.clone(), |r| {
+        let d = &mut dst[r.j0..r.j0 + r.lead + r.valid + r.trail];
+        let (lead, rest) = d.split_at_mut(r.lead);
+        let (mid, trail) = rest.split_at_mut(r.valid);
+        lead.fill(F::zero());
+        trail.fill(F::zero());
+        if let Some(iy) = r.iy {
+            // x row iy from column ix0, every sw-th element
+            let src = &xc[iy * g.w + r.ix0..];
+            if sw == 1 {
+                mid.copy_from_slice(&src[..r.valid]);
+            } else {
+                // first element of each sw-wide chunk (a form the compiler vectorises),
+                // then the last few taps whose chunk would run past the plane
+                let whole = (src.len() / sw).min(r.valid);
+                mid[..whole].iter_mut().zip(src.chunks_exact(sw)).for_each(|(m, c)| *m = c[0]);
+                mid[whole..].iter_mut().zip(src[whole * sw..].iter().step_by(sw)).for_each(|(m, &v)| *m = v);
+            }
+        }
+    });
+}
+
+/// cols(`x[n]`)[:, tile] as the GEMM's B operand, built straight into its packed panels (im2col fused
+/// with packing: no cols matrix is ever stored).
+struct Im2colB<'a, F> {
+    g: &'a Geom,
+    xn: &'a [F],
+    tile: Range<usize>,
+}
+
+impl<F: Float> PackB<F> for Im2colB<'_, F> {
+    fn pack(&self, _plan: &Plan<F>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut F, ldb: usize) {
+        let (g, taps, plane) = (self.g, self.g.kh * self.g.kw, self.g.h * self.g.w);
+        // output pixels of this block: tile.start + j0 ..
+        let px = self.tile.start + j0..self.tile.start + j0 + nc;
+        // SAFETY: the GEMM's buffer holds kc rows of ldb elements.
+        let block = unsafe { std::slice::from_raw_parts_mut(dst, kc * ldb) };
+        for (kk, row) in block.chunks_exact_mut(ldb).enumerate() {
+            // cols row r = c·taps + ki·kw + kj
+            let r = p0 + kk;
+            let (c, t) = (r / taps, r % taps);
+            im2col_row(g, &self.xn[c * plane..(c + 1) * plane], t / g.kw, t % g.kw, &px, &mut row[..nc]);
+            zero(&mut row[nc..]);
         }
     }
 }
@@ -390,12 +429,6 @@ fn col2im<F: Float>(g: &Geom, dcols: &mut [F], nchans: usize, tile: Range<usize>
             }
         }
     }
-}
-
-/// Input channels per row block of cols: whole channels, about `CHUNK_ROWS` rows, evenly split.
-fn block_chans(g: &Geom) -> usize {
-    let blocks = g.cin.div_ceil((CHUNK_ROWS / (g.kh * g.kw)).max(1));
-    g.cin.div_ceil(blocks)
 }
 
 /// Calls `f(rows, cols)` on consecutive row blocks of `cols(x[n])[:, tile]` covering the input
@@ -471,31 +504,57 @@ impl<'a, F: Float> Operands<'a, F> {
 ///
 /// Torch: `F.conv2d(x, w, b, stride=cfg.stride, padding=cfg.padding)`.
 pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg) -> Result<Array4<F>> {
+    conv2d_fwd_ex(x, w, b, cfg, false, Plan::selected())
+}
+
+/// [`conv2d_fwd`] with the ReLU fused into the GEMM's epilogue when `relu` (y = max(conv + b, 0),
+/// as `F.relu(F.conv2d(..))`), on an explicit GEMM plan (any ISA path).
+pub fn conv2d_fwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg, relu: bool,
+                               plan: &Plan<F>) -> Result<Array4<F>> {
     let b = b.map(|b| fixed::<_, Ix1>(OP, "bias", b)).transpose()?;
     let ops = Operands::new(x, w, b.as_ref().map(|b| b.shape()), cfg)?;
-    let (g, xs, wm) = (ops.g, ops.x()?, ops.wmat()?);
-    let b = b.as_ref().map(|b| b.to_vec());
-    let cc = block_chans(&g);
-    let tile = tile_len::<F>(g.pix(), scratch_rows(&g, cc), (TASKS_PER_THREAD * rayon::current_num_threads()).div_ceil(g.n));
+    let bias = b.as_ref().map(|b| b.to_vec());
+    forward(plan, &ops.g, ops.x()?, ops.wmat()?, bias.as_deref(), relu)
+}
+
+/// A standard-layout matrix as a GEMM operand.
+fn strided<F: Float>(m: ArrayView2<F>) -> Strided<F> {
+    let (rows, cols) = m.dim();
+    let st = m.strides();
+    Strided { ptr: m.as_ptr(), rows, cols, rs: st[0], cs: st[1], scale: F::one() }
+}
+
+/// Output pixels per forward task: two tasks per thread over the batch at least, whole NR panels.
+/// (Every output element is the same chain whatever the tiles, so they may follow the threads.)
+fn forward_tile<F>(g: &Geom, plan: &Plan<F>) -> usize {
+    let per_image = (2 * rayon::current_num_threads()).div_ceil(g.n);
+    g.pix().div_ceil(per_image).next_multiple_of(plan.nr).min(g.pix()).max(1)
+}
+
+/// `Y[n][:, tile]` = W · cols(`x[n]`)[:, tile] (+ b, then ReLU) by tasks (image, tile): one GEMM per
+/// task, W packed once for all of them, cols built straight into the GEMM's packed B panels (x
+/// itself for a pointwise conv).
+fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, bias: Option<&[F]>, relu: bool)
+                     -> Result<Array4<F>> {
+    let wpack = Prepacked::new(plan, &strided(wm));
+    let tile = forward_tile(g, plan);
     let mut y = Array3::<F>::zeros((g.n, g.cout, g.pix()));
-    y.outer_iter_mut().into_par_iter().enumerate().try_for_each(|(n, mut yn)| {
+    y.outer_iter_mut().into_par_iter().enumerate().for_each(|(n, mut yn)| {
         let xn = &xs[n * g.img()..(n + 1) * g.img()];
-        yn.axis_chunks_iter_mut(Axis(1), tile).into_par_iter().enumerate().try_for_each(|(t, mut yt)| {
+        yn.axis_chunks_iter_mut(Axis(1), tile).into_par_iter().enumerate().for_each(|(t, mut yt)| {
             let px = t * tile..t * tile + yt.ncols();
-            let beta = match &b {
-                Some(b) => {
-                    yt.outer_iter_mut().zip(b).for_each(|(mut row, &bo)| row.fill(bo));
-                    F::one()
-                }
-                None => F::zero(),
-            };
-            for_each_cols_block(&g, xn, 0..g.cin, cc, px, |rows, cols| {
-                // Y[n][:, tile] (+)= W[:, rows] · cols[rows, tile]; the first block adds to b (or to nothing)
-                let beta = if rows.start == 0 { beta } else { F::one() };
-                gemm(F::one(), wm.slice(s![.., rows]), cols, beta, yt.view_mut());
-            })
-        })
-    })?;
+            let (rsc, c) = (yt.strides()[0], yt.as_mut_ptr());
+            let init = bias.map_or(Init::Zero, |b| Init::Bias(b.as_ptr()));
+            // x[n] as [Cin, H·W], columns of the tile
+            let xt = Strided { ptr: xn[px.start..].as_ptr(), rows: g.cin, cols: px.len(), rs: g.pix() as isize, cs: 1, scale: F::one() };
+            let cols = Im2colB { g, xn, tile: px.clone() };
+            let b: &dyn PackB<F> = if g.pointwise() { &xt } else { &cols };
+            // Y[n][:, tile] = W · cols[:, tile] (+ b, ReLU)
+            // SAFETY: C is this task's own block of y (Cout x tile, row stride H·W); A has Cout rows,
+            // B the tile's columns, both over K; the bias has Cout values.
+            unsafe { gemm::run(plan, g.cout, px.len(), g.k(), SourceA::Packed(&wpack), b, c, rsc, 1, init, relu) };
+        });
+    });
     y.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout)
 }
 
@@ -510,6 +569,12 @@ pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayV
 /// Torch: `torch.autograd.grad(F.conv2d(x, w, b, stride, padding), (x, w, b), g)`.
 pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg,
                             need: Conv2dNeed) -> Result<Conv2dGrads<F>> {
+    conv2d_bwd_ex(x, w, g, cfg, need, Plan::selected())
+}
+
+/// [`conv2d_bwd`] on an explicit GEMM plan (any ISA path).
+pub fn conv2d_bwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg, need: Conv2dNeed,
+                               plan: &Plan<F>) -> Result<Conv2dGrads<F>> {
     let gshape = g.shape().to_vec();
     let ops = Operands::new(x, w, None, cfg)?;
     let geo = ops.g;
@@ -520,16 +585,45 @@ pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>
     }
     let dy = g.as_standard_layout();
     let dys = dy.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: grad_output", &[]))?;
-    let dx = if need.x { Some(input_grad(&geo, ops.wmat()?, dys)?) } else { None };
-    let dw = if need.w { Some(weight_grad(&geo, ops.x()?, dys)?) } else { None };
+    let dx = if need.x { Some(input_grad(plan, &geo, ops.wmat()?, dys)?) } else { None };
+    let dw = if need.w { Some(weight_grad(plan, &geo, ops.x()?, dys)?) } else { None };
     let db = need.b.then(|| bias_grad(&geo, dys));
     Ok(Conv2dGrads { x: dx, w: dw, b: db })
+}
+
+/// For stride 1 with padding below the kernel size, dX is itself a convolution, computed by
+/// [`forward`]: `dX[n, c, y, x]` = Σ_{o, ki, kj} `W[o, c, ki, kj]` · `dY[n, o, y − ki + ph, x − kj + pw]`
+/// = conv(dY, W'), W'`[c, o, ki', kj']` = `W[o, c, kh−1−ki', kw−1−kj']`, padding (kh−1−ph, kw−1−pw).
+/// None when that does not apply (stride > 1, or a pointwise conv, which is one plain GEMM).
+fn input_grad_as_conv<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Option<Result<Array4<F>>> {
+    if g.stride != [1, 1] || g.pointwise() || g.pad[0] >= g.kh || g.pad[1] >= g.kw {
+        return None;
+    }
+    let pad = [g.kh - 1 - g.pad[0], g.kw - 1 - g.pad[1]];
+    let (h, w) = Conv2dCfg::new([1, 1], pad).out_hw(g.ho, g.wo, g.kh, g.kw).ok()?;
+    if (h, w) != (g.h, g.w) {
+        return None;
+    }
+    let taps = g.kh * g.kw;
+    let mut wt = Array2::<F>::zeros((g.cin, g.cout * taps));
+    for (o, wo) in wm.outer_iter().enumerate() {
+        for (c, mut wc) in wt.outer_iter_mut().enumerate() {
+            // W'[c, o·taps + t'] = W[o, c·taps + taps − 1 − t'] (t' = ki'·kw + kj' runs the taps backwards)
+            let (dst, src) = (wc.slice_mut(s![o * taps..(o + 1) * taps]), wo.slice(s![c * taps..(c + 1) * taps]));
+            dst.into_iter().zip(src.iter().rev()).for_each(|(d, &v)| *d = v);
+        }
+    }
+    let gt = Geom { n: g.n, cin: g.cout, h: g.ho, w: g.wo, cout: g.cin, kh: g.kh, kw: g.kw, ho: g.h, wo: g.w, stride: [1, 1], pad };
+    Some(forward(plan, &gt, dy, wt.view(), None, false))
 }
 
 /// dX, by tasks (image, input-channel chunk) that each own `dX[n, chunk]`. The tiles are taken in
 /// bands of about `BAND_BYTES` of dY, all tasks finishing one band before the next starts, so a
 /// band of dY is read from memory once and then from cache by every chunk.
-fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
+fn input_grad<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
+    if let Some(dx) = input_grad_as_conv(plan, g, wm, dy) {
+        return dx;
+    }
     let taps = g.kh * g.kw;
     let (plane, out_len) = (g.h * g.w, g.cout * g.pix());
     // Fewest chunks the row cap allows; more when the threads need more tasks (a multiple of them).
@@ -538,7 +632,7 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
     let chunks = (2 * threads).div_ceil(g.n).max(min_chunks).next_multiple_of(threads).min(g.cin);
     let cc = g.cin.div_ceil(chunks);
     // The tile depends on the shapes only (the widest chunk), so the sums do not depend on the threads.
-    let tile = tile_len::<F>(g.pix(), g.cin.div_ceil(min_chunks) * taps, 1);
+    let tile = tile_len::<F>(g.pix(), g.cin.div_ceil(min_chunks) * taps, 1, plan.nr);
     let band = tile * (BAND_BYTES / (g.cout * tile * std::mem::size_of::<F>()).max(1)).max(1);
     let mut dx = Array3::<F>::zeros((g.n, g.cin, plane));
     if let (false, Some(d)) = (g.pointwise(), dx.as_slice_mut()) {
@@ -560,14 +654,14 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
                     let dyt = dyn_.slice(s![.., px.clone()]);
                     if g.pointwise() {
                         // dX[n, chunk, tile] = W[:, chunk]ᵀ · dY[n][:, tile]
-                        gemm(F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]));
+                        gemm_ex(plan, F::one(), wt, dyt, F::zero(), dxc.slice_mut(s![.., px]), Epilogue::default());
                         continue;
                     }
                     let dxs = dxc.as_slice_mut().ok_or_else(|| Error::shape(OP, "internal layout error: dx", &[]))?;
                     with_scratch(rows * px.len(), |buf: &mut [F]| {
                         let dcols = ArrayViewMut2::from_shape((rows, px.len()), &mut *buf).map_err(layout)?;
                         // dcols = W[:, chunk]ᵀ · dY[n][:, tile]
-                        gemm(F::one(), wt, dyt, F::zero(), dcols);
+                        gemm_ex(plan, F::one(), wt, dyt, F::zero(), dcols, Epilogue::default());
                         col2im(g, &mut buf[..rows * px.len()], chans.len(), px.clone(), dxs);
                         Ok::<_, Error>(())
                     })?;
@@ -579,29 +673,76 @@ fn input_grad<F: Float>(g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<
     dx.into_shape_with_order((g.n, g.cin, g.h, g.w)).map_err(layout)
 }
 
-/// dW, as `DW_GROUPS` partial sums over contiguous runs of (image, tile), fixed by the shapes and
-/// added in group order. Each tile builds cols for all of K, so one GEMM packs dY once per tile.
-/// Group 0 sums straight into dW, the others into this thread's reused `PARTIALS` buffer; the
-/// first tile of a group overwrites (beta 0), so no buffer needs clearing.
-fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
-    let (out_len, wlen) = (g.cout * g.pix(), g.cout * g.k());
-    let tile = tile_len::<F>(g.pix(), scratch_rows(g, g.cin), DW_GROUPS.div_ceil(g.n));
-    let work: Vec<(usize, Range<usize>)> = (0..g.n).flat_map(|n| tiles(g.pix(), tile).map(move |t| (n, t))).collect();
-    let groups = DW_GROUPS.min(work.len()).max(1);
+/// Input channels from which dW takes the pixel-major path (below, its rows of Cin contiguous
+/// values are too short to beat im2col + transposed packing).
+const NHWC_MIN_CIN: usize = 16;
+
+/// dW as `DW_GROUPS` partial sums, fixed by the shapes and added in group order; each group is one
+/// chain of GEMMs over its (image, pixel range) pieces in order. Group 0 sums straight into the
+/// result, the others into this thread's reused `PARTIALS` buffer; the first piece of a group
+/// overwrites (Init::Zero), so no buffer needs clearing.
+///
+/// Two ways to feed the GEMM `dW (+)= dY[n][:, range] · cols[:, range]ᵀ`:
+/// - pixel-major (Cin >= `NHWC_MIN_CIN`, not pointwise): x is transposed once to `xᵀ[n][p, c]`, and
+///   K is ordered tap-major (k' = t·Cin + c), so each B row (one pixel) is `taps` contiguous runs
+///   of Cin values of xᵀ (zeros for taps in the padding); the result is permuted back to c·taps + t;
+/// - otherwise: cols tiles in this thread's scratch (x itself when pointwise), packed transposed.
+fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
+    let (pix, wlen, taps) = (g.pix(), g.cout * g.k(), g.kh * g.kw);
+    let nhwc = g.cin >= NHWC_MIN_CIN && !g.pointwise();
+    // the pieces: (image, pixel range), NHWC: the n·pix pixels cut in DW_GROUPS ranges; else tiles
+    let pieces: Vec<Vec<(usize, Range<usize>)>> = if nhwc {
+        let total = g.n * pix;
+        let groups = DW_GROUPS.min(total).max(1);
+        (0..groups)
+            .map(|gi| {
+                // global pixels [gi·total / groups, (gi + 1)·total / groups), split at image ends
+                let (a, b) = (gi * total / groups, (gi + 1) * total / groups);
+                (a / pix..b.div_ceil(pix)).map(|n| (n, a.max(n * pix) - n * pix..b.min(n * pix + pix) - n * pix))
+                    .filter(|(_, r)| !r.is_empty())
+                    .collect()
+            })
+            .collect()
+    } else {
+        let tile = tile_len::<F>(pix, scratch_rows(g, g.cin), DW_GROUPS.div_ceil(g.n), 8);
+        let work: Vec<(usize, Range<usize>)> = (0..g.n).flat_map(|n| tiles(pix, tile).map(move |t| (n, t))).collect();
+        let groups = DW_GROUPS.min(work.len()).max(1);
+        (0..groups).map(|gi| work[gi * work.len() / groups..(gi + 1) * work.len() / groups].to_vec()).collect()
+    };
+    // xᵀ[n][q, c] = x[n][c, q] over the input pixels q
+    let xt: Vec<F> = if nhwc {
+        let mut xt = vec![F::zero(); xs.len()];
+        xt.par_chunks_mut(g.img()).zip(xs.par_chunks(g.img())).for_each(|(t, x)| gemm::transpose(plan, x, g.cin, g.h * g.w, t));
+        xt
+    } else {
+        Vec::new()
+    };
+    let groups = pieces.len();
     let mut dw = Array2::<F>::zeros((g.cout, g.k()));
     with_buf(&PARTIALS, (groups - 1) * wlen, |rest: &mut [F]| {
         let mut parts = vec![dw.view_mut()];
         for chunk in rest.chunks_exact_mut(wlen) {
             parts.push(ArrayViewMut2::from_shape((g.cout, g.k()), chunk).map_err(layout)?);
         }
-        parts.into_par_iter().enumerate().try_for_each(|(gi, mut part)| {
-            for (t, (n, px)) in work[gi * work.len() / groups..(gi + 1) * work.len() / groups].iter().enumerate() {
-                let dyt = mat(&dy[n * out_len..(n + 1) * out_len], g.cout, g.pix())?.slice_move(s![.., px.clone()]);
-                let xn = &xs[n * g.img()..(n + 1) * g.img()];
+        parts.into_par_iter().zip(&pieces).try_for_each(|(mut part, pieces)| {
+            for (t, (n, px)) in pieces.iter().enumerate() {
+                let dyt = mat(&dy[n * g.cout * pix..(n + 1) * g.cout * pix], g.cout, pix)?.slice_move(s![.., px.clone()]);
                 let beta = if t == 0 { F::zero() } else { F::one() };
+                if nhwc {
+                    // dW'[:, t·Cin + c] (+)= dY[n][:, range] · colsᵀ (tap-major K)
+                    let a = strided(dyt);
+                    let b = NhwcColsT { g, xt: &xt[n * g.img()..(n + 1) * g.img()], px0: px.start };
+                    let init = if t == 0 { Init::Zero } else { Init::Load };
+                    let (rsc, c) = (part.strides()[0], part.as_mut_ptr());
+                    // SAFETY: C is this group's own Cout x K matrix; A has Cout rows and B K columns,
+                    // both over the range's pixels.
+                    unsafe { gemm::run(plan, g.cout, g.k(), px.len(), SourceA::Strided(&a), &b, c, rsc, 1, init, false) };
+                    continue;
+                }
+                let xn = &xs[n * g.img()..(n + 1) * g.img()];
                 for_each_cols_block(g, xn, 0..g.cin, g.cin, px.clone(), |_, cols| {
                     // dW_group (+)= dY[n][:, tile] · cols[:, tile]ᵀ
-                    gemm(F::one(), dyt, cols.t(), beta, part.view_mut())
+                    gemm_ex(plan, F::one(), dyt, cols.t(), beta, part.view_mut(), Epilogue::default())
                 })?;
             }
             Ok::<_, Error>(())
@@ -613,7 +754,58 @@ fn weight_grad<F: Float>(g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
         });
         Ok(())
     })?;
+    if nhwc {
+        let mut perm = Array2::<F>::zeros((g.cout, g.k()));
+        perm.outer_iter_mut().into_par_iter().zip(dw.outer_iter()).for_each(|(mut dst, src)| {
+            let (dst, src) = (dst.as_slice_mut(), src.as_slice());
+            if let (Some(dst), Some(src)) = (dst, src) {
+                for (c, d) in dst.chunks_exact_mut(taps).enumerate() {
+                    // dW[o, c·taps + t] = dW'[o, t·Cin + c]
+                    d.iter_mut().enumerate().for_each(|(t, d)| *d = src[t * g.cin + c]);
+                }
+            }
+        });
+        dw = perm;
+    }
     dw.into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout)
+}
+
+/// colsᵀ with tap-major K (k' = t·Cin + c) over pixels `px0 + ..` of one image, from xᵀ (`[H·W, Cin]`):
+/// B(p, t·Cin + c) = xᵀ[q, c] with q the input pixel tap t of output pixel p reads (0 in the padding).
+struct NhwcColsT<'a, F> {
+    g: &'a Geom,
+    xt: &'a [F],
+    px0: usize,
+}
+
+impl<F: Float> PackB<F> for NhwcColsT<'_, F> {
+    fn pack(&self, _plan: &Plan<F>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut F, ldb: usize) {
+        let (g, cin) = (self.g, self.g.cin);
+        let ([sh, sw], [ph, pw]) = (g.stride, g.pad);
+        // SAFETY: the GEMM's buffer holds kc rows of ldb elements.
+        let block = unsafe { std::slice::from_raw_parts_mut(dst, kc * ldb) };
+        for (kk, row) in block.chunks_exact_mut(ldb).enumerate() {
+            // output pixel p = (oy, ox)
+            let p = self.px0 + p0 + kk;
+            let (oy, ox) = (p / g.wo, p % g.wo);
+            let mut j = j0;
+            while j < j0 + nc {
+                // k' = j = t·Cin + c: the run of channels c.. of tap t = (ki, kj) inside this block
+                let (t, c) = (j / cin, j % cin);
+                let len = (cin - c).min(j0 + nc - j);
+                // input pixel (iy, ix) = (oy·sh + ki − ph, ox·sw + kj − pw)
+                let iy = (oy * sh + t / g.kw).checked_sub(ph).filter(|&iy| iy < g.h);
+                let ix = (ox * sw + t % g.kw).checked_sub(pw).filter(|&ix| ix < g.w);
+                let out = &mut row[j - j0..j - j0 + len];
+                match (iy, ix) {
+                    (Some(iy), Some(ix)) => out.copy_from_slice(&self.xt[(iy * g.w + ix) * cin + c..][..len]),
+                    _ => out.fill(F::zero()),
+                }
+                j += len;
+            }
+            zero(&mut row[nc..]);
+        }
+    }
 }
 
 /// `db[o]` = Σ_n Σ_p `dY[n, o, p]`, in order.

@@ -1,11 +1,12 @@
-//! Bindings of `ops::conv`, plus `gemm_fwd` (the benchmark's handle on `gemm.rs`).
+//! Bindings of `ops::conv`.
 
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
 
 use super::convert::{arr, float_dispatch, run_kernel};
+use crate::gemm::Plan;
 use crate::ops::conv::{self, Conv2dCfg, Conv2dNeed};
-use crate::{Error, Float, Result};
+use crate::{Error, Result};
 
 const OP: &str = "conv2d";
 
@@ -20,7 +21,7 @@ fn cfg(stride: (i64, i64), padding: (i64, i64)) -> Result<Conv2dCfg> {
     Ok(Conv2dCfg::new(nonneg(stride, "stride")?, nonneg(padding, "padding")?))
 }
 
-/// y = conv2d(x, weight) + bias, zero padding.
+/// y = conv2d(x, weight) + bias, zero padding; then max(y, 0) when `relu` (fused into the GEMM).
 ///
 /// Args:
 ///     x: (N, Cin, H, W) float32/float64 array.
@@ -28,18 +29,19 @@ fn cfg(stride: (i64, i64), padding: (i64, i64)) -> Result<Conv2dCfg> {
 ///     bias: (Cout,) or None.
 ///     stride: (sh, sw), each >= 1.
 ///     padding: (ph, pw), each >= 0.
+///     relu: apply ReLU to the output.
 /// Returns:
 ///     y, (N, Cout, Ho, Wo).
 #[pyfunction]
-#[pyo3(signature = (x, weight, bias=None, stride=(1, 1), padding=(0, 0)))]
+#[pyo3(signature = (x, weight, bias=None, stride=(1, 1), padding=(0, 0), relu=false))]
 fn conv2d_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, PyAny>, bias: Option<&Bound<'py, PyAny>>,
-                   stride: (i64, i64), padding: (i64, i64)) -> PyResult<Bound<'py, PyAny>> {
+                   stride: (i64, i64), padding: (i64, i64), relu: bool) -> PyResult<Bound<'py, PyAny>> {
     let cfg = cfg(stride, padding)?;
     float_dispatch!(OP, "input", x, F => {
         let (x, w) = (arr::<F>(OP, "input", x)?, arr::<F>(OP, "weight", weight)?);
         let b = bias.map(|b| arr::<F>(OP, "bias", b)).transpose()?;
         let (xv, wv, bv) = (x.as_array(), w.as_array(), b.as_ref().map(|b| b.as_array()));
-        let y = run_kernel(py, || conv::conv2d_fwd(xv, wv, bv, &cfg))?;
+        let y = run_kernel(py, || conv::conv2d_fwd_ex(xv, wv, bv, &cfg, relu, Plan::selected()))?;
         Ok(y.into_pyarray(py).into_any())
     })
 }
@@ -75,37 +77,8 @@ fn conv2d_bwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, P
     })
 }
 
-/// a · b through mipnet's GEMM (`gemm_par`), for benchmarking it.
-///
-/// Args:
-///     a: (m, k) float32/float64 array.
-///     b: (k, n), same dtype.
-/// Returns:
-///     (m, n) product.
-#[pyfunction]
-fn gemm_fwd<'py>(py: Python<'py>, a: &Bound<'py, PyAny>, b: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    const GEMM: &str = "gemm";
-    float_dispatch!(GEMM, "a", a, F => {
-        let (a, b) = (arr::<F>(GEMM, "a", a)?, arr::<F>(GEMM, "b", b)?);
-        let (av, bv) = (a.as_array(), b.as_array());
-        let c = run_kernel(py, || {
-            let (a2, b2) = (crate::tensor::fixed::<_, numpy::ndarray::Ix2>(GEMM, "a", av)?,
-                            crate::tensor::fixed::<_, numpy::ndarray::Ix2>(GEMM, "b", bv)?);
-            if a2.ncols() != b2.nrows() {
-                return Err(Error::shape(GEMM, "a.shape[1] must equal b.shape[0]", &[("a", a2.shape()), ("b", b2.shape())]));
-            }
-            let mut c = numpy::ndarray::Array2::<F>::zeros((a2.nrows(), b2.ncols()));
-            // C = A · B
-            crate::gemm::gemm_par(F::c(1.0), a2, b2, F::c(0.0), c.view_mut());
-            Ok(c)
-        })?;
-        Ok(c.into_pyarray(py).into_any())
-    })
-}
-
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(conv2d_fwd, m)?)?;
     m.add_function(wrap_pyfunction!(conv2d_bwd, m)?)?;
-    m.add_function(wrap_pyfunction!(gemm_fwd, m)?)?;
     Ok(())
 }

@@ -8,6 +8,7 @@ mod convert;
 mod corr;
 mod elementwise;
 mod errors;
+mod gemm;
 mod loss;
 mod norm;
 mod pad;
@@ -37,6 +38,7 @@ fn _reset_after_fork() {
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    gemm::check_env()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
@@ -46,6 +48,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     conv::register(m)?;
     corr::register(m)?;
     elementwise::register(m)?;
+    gemm::register(m)?;
     loss::register(m)?;
     norm::register(m)?;
     pad::register(m)?;

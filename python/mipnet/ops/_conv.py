@@ -1,4 +1,4 @@
-"""2-D convolution (kernels: ``conv2d_fwd`` / ``conv2d_bwd``)."""
+"""2-D convolution, and convolution + ReLU fused (kernels: ``conv2d_fwd`` / ``conv2d_bwd``)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from ..errors import ArgumentError
 from ..tensor import Tensor
 from ._common import as_tensor, pair
 
-__all__ = ["conv2d"]
+__all__ = ["conv2d", "conv2d_relu"]
 
 
 class _Conv2d(Function):
@@ -26,6 +26,42 @@ class _Conv2d(Function):
         need_x, need_w, need_b = ctx.needs_input_grad[:3]
         dx, dw, db = _core.conv2d_bwd(x, weight, g, ctx.stride, ctx.padding, need_x, need_w, need_b)
         return dx, dw, db, None, None
+
+
+class _Conv2dRelu(Function):
+    """relu(conv2d(x, w, b)) with the ReLU in the GEMM's epilogue; the backward masks g by y > 0."""
+
+    name = "conv2d_relu"
+
+    @staticmethod
+    def forward(ctx, x, weight, bias, stride, padding):
+        y = _core.conv2d_fwd(x, weight, bias, stride, padding, relu=True)
+        ctx.save_for_backward(x, weight, y)
+        ctx.stride, ctx.padding = stride, padding
+        return y
+
+    @staticmethod
+    def backward(ctx, g):
+        x, weight, y = ctx.saved_tensors
+        need_x, need_w, need_b = ctx.needs_input_grad[:3]
+        # d relu: g · [y > 0], then the conv's backward
+        g = _core.unary_bwd(y, g, "relu")
+        dx, dw, db = _core.conv2d_bwd(x, weight, g, ctx.stride, ctx.padding, need_x, need_w, need_b)
+        return dx, dw, db, None, None
+
+
+def _conv_args(name: str, input, weight, bias, stride, padding, dilation, groups):
+    """Validated arguments of conv2d / conv2d_relu: tensors, (sh, sw), (ph, pw)."""
+    if pair(dilation, "dilation", name) != (1, 1):
+        raise ArgumentError(f"{name}: only dilation=1 is supported, got dilation={dilation!r}")
+    if groups != 1:
+        raise ArgumentError(f"{name}: only groups=1 is supported, got groups={groups!r}")
+    if isinstance(padding, str):
+        if padding != "valid":
+            raise ArgumentError(f"{name}: padding must be an int, a pair of ints or 'valid', got {padding!r}")
+        padding = 0
+    bias = None if bias is None else as_tensor(bias)
+    return as_tensor(input), as_tensor(weight), bias, pair(stride, "stride", name), pair(padding, "padding", name)
 
 
 def conv2d(input: Tensor, weight: Tensor, bias: Tensor | None = None, stride=1, padding=0, dilation=1,
@@ -61,15 +97,12 @@ def conv2d(input: Tensor, weight: Tensor, bias: Tensor | None = None, stride=1, 
     ShapeError
         wrong ranks, channel mismatch, empty tensors, a kernel larger than the padded input.
     """
-    if pair(dilation, "dilation", "conv2d") != (1, 1):
-        raise ArgumentError(f"conv2d: only dilation=1 is supported, got dilation={dilation!r}")
-    if groups != 1:
-        raise ArgumentError(f"conv2d: only groups=1 is supported, got groups={groups!r}")
-    if isinstance(padding, str):
-        if padding != "valid":
-            raise ArgumentError(f"conv2d: padding must be an int, a pair of ints or 'valid', got {padding!r}")
-        padding = 0
-    input = as_tensor(input)
-    weight = as_tensor(weight)
-    bias = None if bias is None else as_tensor(bias)
-    return _Conv2d.apply(input, weight, bias, pair(stride, "stride", "conv2d"), pair(padding, "padding", "conv2d"))
+    return _Conv2d.apply(*_conv_args("conv2d", input, weight, bias, stride, padding, dilation, groups))
+
+
+def conv2d_relu(input: Tensor, weight: Tensor, bias: Tensor | None = None, stride=1, padding=0, dilation=1,
+                groups=1) -> Tensor:
+    """``relu(conv2d(input, weight, bias, stride, padding))`` in one kernel: the ReLU runs in the GEMM's
+    epilogue, so the pre-activation is never written. Same result as the two ops (bitwise), same
+    arguments, shapes and errors as :func:`conv2d`; its backward masks the gradient by output > 0."""
+    return _Conv2dRelu.apply(*_conv_args("conv2d_relu", input, weight, bias, stride, padding, dilation, groups))

@@ -1,0 +1,55 @@
+//! Times conv2d forward, dX and dW on the selected GEMM path for one shape (a profiling target).
+//!
+//! cargo run --release --example conv_time -- N CIN COUT H W KH KW STRIDE [REPEAT]
+
+use _core::gemm::{fma_peak_gflops, Isa};
+use _core::ops::conv::{conv2d_bwd, conv2d_fwd, Conv2dCfg, Conv2dNeed};
+use ndarray::{ArrayD, Dimension, IxDyn};
+use std::time::Instant;
+
+/// CPU time of all this process's threads, seconds (from /proc/self/task/*/schedstat: time on a CPU,
+/// so another process sharing the cores does not count; Linux only, 0 elsewhere).
+fn cpu_seconds() -> f64 {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return 0.0 };
+    tasks
+        .filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .sum::<f64>()
+        / 1e9
+}
+
+fn main() -> Result<(), String> {
+    let a: Vec<usize> = std::env::args().skip(1).map(|s| s.parse().map_err(|_| format!("{s}: not a number"))).collect::<Result<_, _>>()?;
+    let [n, cin, cout, h, w, kh, kw, s] = a[..8] else { return Err("usage: conv_time N CIN COUT H W KH KW STRIDE [REPEAT]".into()) };
+    let repeat = a.get(8).copied().unwrap_or(10);
+    let cfg = Conv2dCfg::new([s, s], [kh / 2, kw / 2]);
+    let fill = |shape: &[usize]| ArrayD::from_shape_fn(IxDyn(shape), |i| ((i.as_array_view().sum() * 7919) % 101) as f32 / 101.0 - 0.5);
+    let (x, wt) = (fill(&[n, cin, h, w]), fill(&[cout, cin, kh, kw]));
+    let y = conv2d_fwd(x.view(), wt.view(), None, &cfg).map_err(|e| e.to_string())?;
+    let g = y.mapv(|v| v * 0.5).into_dyn();
+    let flops = 2.0 * (n * cout * cin * kh * kw * y.shape()[2] * y.shape()[3]) as f64;
+    let threads = rayon::current_num_threads();
+    let peak = fma_peak_gflops(threads, Isa::selected()).map_err(|e| e.to_string())?;
+    let time = |what: &str, f: &dyn Fn()| {
+        let (mut best, mut best_cpu) = (f64::INFINITY, f64::INFINITY);
+        for _ in 0..repeat {
+            let (t, c0) = (Instant::now(), cpu_seconds());
+            f();
+            best = best.min(t.elapsed().as_secs_f64());
+            best_cpu = best_cpu.min(cpu_seconds() - c0);
+        }
+        println!("{what:4} {:8.2} ms {:6.1} GFLOP/s {:5.1}% of {peak:.0} | per CPU second {:6.1} GFLOP/s",
+                 best * 1e3, flops / best / 1e9, 100.0 * flops / best / 1e9 / peak, flops / best_cpu / 1e9);
+    };
+    let only = std::env::var("ONLY").unwrap_or_default();
+    if only.is_empty() || only == "fwd" {
+        time("fwd", &|| drop(conv2d_fwd(x.view(), wt.view(), None, &cfg)));
+    }
+    if only.is_empty() || only == "dx" {
+        time("dx", &|| drop(conv2d_bwd(x.view(), wt.view(), g.view(), &cfg, Conv2dNeed { x: true, w: false, b: false })));
+    }
+    if only.is_empty() || only == "dw" {
+        time("dw", &|| drop(conv2d_bwd(x.view(), wt.view(), g.view(), &cfg, Conv2dNeed { x: false, w: true, b: false })));
+    }
+    Ok(())
+}

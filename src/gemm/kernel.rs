@@ -1,0 +1,124 @@
+//! The micro-kernel: an MR x NR tile of C (NR = NV vectors) held in MR·NV registers while it sums
+//! KC rank-1 updates from a packed A micro-panel (MR values broadcast per k) and NR columns of a
+//! packed B block (NV vectors loaded per k, rows `ldb` elements apart).
+//!
+//! It is written once, generic over [`Simd`], and compiled per ISA by `isa_entry!` under that ISA's
+//! `target_feature`. Every element of C is one chain of fused multiply-adds in increasing k,
+//! starting from its initial value (0, its bias, or C itself when a later K block continues the
+//! chain), so the result does not depend on MR, NR or the block sizes.
+
+use super::isa::Simd;
+
+/// How a tile's accumulators start.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Init<E> {
+    /// From 0 (C is not read, so NaN there is ignored).
+    Zero,
+    /// From C (a later K block, or beta = 1).
+    Load,
+    /// From `bias[i]` for row i of the tile (MR readable values).
+    Bias(*const E),
+}
+
+/// One micro-tile of C: row-major with unit column stride, full MR x NR.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Tile<E> {
+    pub c: *mut E,
+    /// Row stride of C, elements.
+    pub ldc: isize,
+    pub init: Init<E>,
+    /// max(·, 0) before the store (the last K block of a fused ReLU).
+    pub relu: bool,
+    /// The tile the next call will write (its lines are prefetched).
+    pub next: *const E,
+}
+
+/// A micro-kernel: (kc, packed A micro-panel, first B column, B row stride, tile).
+pub(crate) type UKernel<E> = unsafe fn(usize, *const E, *const E, usize, &Tile<E>);
+
+/// Rows of B read ahead of the current k by the software prefetch.
+const PREFETCH_K: usize = 8;
+
+/// C tile <- init + Σ_kk A(:, kk) ⊗ B(kk, :), then ReLU if asked.
+///
+/// # Safety
+/// `S`'s ISA is available; `pa` holds kc·MR elements, `pb` kc rows of NR elements `ldb` apart; the
+/// tile is MR x NR valid elements at `c` with row stride `ldc`.
+#[inline(always)]
+pub(crate) unsafe fn micro<E: Copy, S: Simd<E>, const MR: usize, const NV: usize>(kc: usize, pa: *const E,
+                                                                              pb: *const E, ldb: usize, t: &Tile<E>) {
+    let nr = NV * S::LANES;
+    // SAFETY: the caller's contract covers every pointer below: tile rows i < MR, vectors v < NV,
+    // packed panels up to kc steps; prefetches never fault.
+    unsafe {
+        // element (i, v·LANES) of the tile: c + i·ldc + v·LANES
+        let at = |i: usize, v: usize| t.c.offset(i as isize * t.ldc).add(v * S::LANES);
+        let mut acc: [[S::V; NV]; MR] = match t.init {
+            Init::Zero => [[S::zero(); NV]; MR],
+            Init::Load => std::array::from_fn(|i| std::array::from_fn(|v| S::load(at(i, v)))),
+            Init::Bias(b) => std::array::from_fn(|i| [S::splat(*b.add(i)); NV]),
+        };
+        // one prefetch per 64-byte line of the next tile's rows
+        let line = 64 / std::mem::size_of::<E>();
+        for i in 0..MR {
+            for j in (0..nr).step_by(line) {
+                S::prefetch(t.next.offset(i as isize * t.ldc).add(j));
+            }
+        }
+        let (mut a, mut b) = (pa, pb);
+        for _ in 0..kc {
+            // acc[i][v] += A(i, kk) · B(kk, v·LANES .. (v + 1)·LANES)
+            let bv: [S::V; NV] = std::array::from_fn(|v| S::load(b.add(v * S::LANES)));
+            for j in (0..nr).step_by(line) {
+                S::prefetch(b.wrapping_add(PREFETCH_K * ldb + j));
+            }
+            for (i, row) in acc.iter_mut().enumerate() {
+                let ai = S::splat(*a.add(i));
+                for (r, &bb) in row.iter_mut().zip(&bv) {
+                    *r = S::fma(ai, bb, *r);
+                }
+            }
+            a = a.add(MR);
+            b = b.add(ldb);
+        }
+        for (i, row) in acc.iter().enumerate() {
+            for (v, &r) in row.iter().enumerate() {
+                S::store(at(i, v), if t.relu { S::relu(r) } else { r });
+            }
+        }
+    }
+}
+
+/// Defines `$name::<E, MR, NV>`: [`micro`] compiled for one ISA (`$feat` is its `target_feature`).
+macro_rules! isa_entry {
+    ($name:ident, $isa:ty, $feat:literal) => {
+        /// [`micro`] compiled with this ISA's target features.
+        ///
+        /// # Safety
+        /// As [`micro`]; the CPU supports the ISA.
+        #[target_feature(enable = $feat)]
+        pub(crate) unsafe fn $name<E: Copy, const MR: usize, const NV: usize>(kc: usize, pa: *const E, pb: *const E,
+                                                                          ldb: usize, t: &Tile<E>)
+        where
+            $isa: Simd<E>,
+        {
+            // SAFETY: forwarded contract; the target feature is enabled for this body.
+            unsafe { micro::<E, $isa, MR, NV>(kc, pa, pb, ldb, t) }
+        }
+    };
+}
+
+#[cfg(target_arch = "x86_64")]
+isa_entry!(avx512, super::isa::Avx512, "avx512f");
+#[cfg(target_arch = "x86_64")]
+isa_entry!(avx2, super::isa::Avx2, "avx2,fma");
+
+/// [`micro`] on the portable path.
+///
+/// # Safety
+/// As [`micro`].
+pub(crate) unsafe fn generic<E: crate::Float, const MR: usize, const NV: usize>(kc: usize, pa: *const E, pb: *const E,
+                                                                             ldb: usize, t: &Tile<E>) {
+    // SAFETY: forwarded contract; the portable path needs no CPU feature.
+    unsafe { micro::<E, super::isa::Generic, MR, NV>(kc, pa, pb, ldb, t) }
+}

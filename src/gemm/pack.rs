@@ -1,0 +1,204 @@
+//! Packing: copying a block of an operand into the layout the micro-kernel reads.
+//!
+//! A panel of width w over kc steps of depth is stored `dst[kk·w + j]` (depth-major), zero-padded
+//! past the used width: A in MR-row panels, B as one panel as wide as the block (NC columns rounded
+//! up to NR, so each depth row of the block is one contiguous run the kernel reads NR columns of).
+//! A source describes where the operand's elements come from: a strided matrix ([`Strided`]), an
+//! already packed A ([`Prepacked`]), or one that builds its values on the fly (conv's im2col, in
+//! `ops/conv.rs`).
+
+use super::Plan;
+use crate::Float;
+
+/// The A operand (m x k, broadcast along rows) of one GEMM call.
+#[derive(Clone, Copy)]
+pub(crate) enum SourceA<'a, E> {
+    /// Packed by the GEMM, MC rows at a time.
+    Strided(&'a Strided<E>),
+    /// Packed once by the caller for this plan.
+    Packed(&'a Prepacked<E>),
+}
+
+/// A source of the B operand (k x n, loaded as vectors along columns).
+pub(crate) trait PackB<E>: Sync {
+    /// Packs columns `j0..j0 + nc` over depth `p0..p0 + kc` into `dst` row-major with row stride
+    /// `ldb` >= nc rounded up to NR: `dst[kk·ldb + j]` = B(p0 + kk, j0 + j), 0 for nc <= j < ldb.
+    fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize);
+}
+
+/// A strided matrix `x[i, j]` = `*(ptr + i·rs + j·cs)` of rows x cols, scaled by `scale` when packed.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Strided<E> {
+    pub ptr: *const E,
+    pub rows: usize,
+    pub cols: usize,
+    pub rs: isize,
+    pub cs: isize,
+    pub scale: E,
+}
+
+// SAFETY: a Strided only reads through its pointer, which callers keep valid for the GEMM call;
+// the GEMM's tasks share it read-only.
+unsafe impl<E: Sync> Sync for Strided<E> {}
+
+impl<E: Float> Strided<E> {
+    /// Address of element (i, j).
+    fn at(&self, i: usize, j: usize) -> *const E {
+        self.ptr.wrapping_offset(i as isize * self.rs + j as isize * self.cs)
+    }
+}
+
+impl<E: Float> Strided<E> {
+    /// Packs rows `i0..i0 + mc` over all of the depth into `dst` in the layout of [`Prepacked`]: K
+    /// block (of `plan.kc_for(k)`) after K block (the block at depth p0 starts at p0·mpad, mpad = mc rounded up to MR),
+    /// each holding the MR-row panels (kc·MR elements each, zero rows past mc).
+    ///
+    /// # Safety
+    /// `dst` has room for mpad·max(k, 1) elements; rows i0..i0 + mc exist.
+    pub(crate) unsafe fn pack_rows(&self, plan: &Plan<E>, i0: usize, mc: usize, dst: *mut E) {
+        let (mr, k) = (plan.mr, self.cols);
+        let mpad = mc.div_ceil(mr) * mr;
+        let kcb = plan.kc_for(k);
+        for p0 in (0..k).step_by(kcb) {
+            let kc = kcb.min(k - p0);
+            for (p, r0) in (i0..i0 + mc).step_by(mr).enumerate() {
+                // panel p of block p0: rows r0.., index i along rs, depth kk along cs, at p0·mpad + p·kc·MR
+                // SAFETY: the panel lies inside `dst` and the elements read inside the matrix.
+                unsafe {
+                    panel(plan, kc, mr.min(i0 + mc - r0), mr, self.at(r0, p0), self.rs, self.cs, self.scale,
+                          dst.add(p0 * mpad + p * kc * mr))
+                };
+            }
+        }
+    }
+}
+
+impl<E: Float> PackB<E> for Strided<E> {
+    fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize) {
+        // one panel of width ldb: index j along cs, depth kk along rs
+        // SAFETY: the block lies inside `dst` (kc·ldb elements) and the elements read inside the matrix.
+        unsafe { panel(plan, kc, nc, ldb, self.at(p0, j0), self.cs, self.rs, self.scale, dst) };
+    }
+}
+
+/// A whole A packed once for a plan (conv weights: packed once per call, shared by its tasks), in
+/// the layout of [`Strided::pack_rows`].
+pub(crate) struct Prepacked<E> {
+    data: Vec<E>,
+    /// Rows rounded up to a multiple of MR.
+    pub(crate) mpad: usize,
+    mr: usize,
+    kc: usize,
+}
+
+impl<E: Float> Prepacked<E> {
+    /// Packs `a` (m x k) for `plan`.
+    pub(crate) fn new(plan: &Plan<E>, a: &Strided<E>) -> Self {
+        let mpad = a.rows.div_ceil(plan.mr) * plan.mr;
+        let mut data = vec![E::zero(); mpad * a.cols.max(1)];
+        // SAFETY: `data` has room for mpad·max(k, 1) elements.
+        unsafe { a.pack_rows(plan, 0, a.rows, data.as_mut_ptr()) };
+        Prepacked { data, mpad, mr: plan.mr, kc: plan.kc }
+    }
+
+    /// The packed data, after checking it was packed for `plan`'s MR and KC.
+    pub(crate) fn data(&self, plan: &Plan<E>) -> Option<*const E> {
+        (plan.mr == self.mr && plan.kc == self.kc).then_some(self.data.as_ptr())
+    }
+}
+
+/// Packs one panel: `dst[kk·w + j]` = scale · `src[j·ps + kk·ks]` for kk < kc, j < used (0 for
+/// used <= j < w). A unit panel stride copies rows; a unit depth stride (a transpose) goes by 8 x 8
+/// register transposes for f32 where the ISA has AVX. (The zero bits of 0.0 are written with
+/// `write_bytes`.)
+///
+/// # Safety
+/// `src` reads lie in the operand, `dst` has kc·w elements.
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn panel<E: Float>(plan: &Plan<E>, kc: usize, used: usize, w: usize, src: *const E, ps: isize, ks: isize,
+                          scale: E, dst: *mut E) {
+    let one = scale == E::one();
+    // SAFETY: every access is within the ranges of the contract.
+    unsafe {
+        if ps == 1 && one {
+            for kk in 0..kc {
+                // dst row kk = src(kk, 0..used), contiguous, then zeros to w
+                std::ptr::copy_nonoverlapping(src.offset(kk as isize * ks), dst.add(kk * w), used);
+                if used < w {
+                    std::ptr::write_bytes(dst.add(kk * w + used), 0, w - used);
+                }
+            }
+            return;
+        }
+        let (j0, k8) = if ks == 1 && one { transpose_blocks(plan, kc, used, w, src, ps, dst) } else { (0, 0) };
+        for j in 0..w {
+            // the rest element by element: columns past the 8-blocks, and the depth tail of the others
+            let from = if j < j0 { k8 } else { 0 };
+            for kk in from..kc {
+                *dst.add(kk * w + j) = if j < used { scale * *src.offset(j as isize * ps + kk as isize * ks) } else { E::zero() };
+            }
+        }
+    }
+}
+
+/// The part of a unit-depth-stride panel done by 8 x 8 register transposes (f32 on an x86 path
+/// other than the portable one): `dst[(k0 + t)·w + j0 + i]` = `src[(j0 + i)·ps + k0 + t]` for whole
+/// 8 x 8 blocks. Returns (columns, depth) covered: columns below the first from depth the second
+/// on, and all columns past the first, are left to the caller.
+///
+/// # Safety
+/// As [`panel`].
+#[cfg(target_arch = "x86_64")]
+unsafe fn transpose_blocks<E: Float>(plan: &Plan<E>, kc: usize, used: usize, w: usize, src: *const E, ps: isize,
+                                     dst: *mut E) -> (usize, usize) {
+    if std::any::TypeId::of::<E>() != std::any::TypeId::of::<f32>() || plan.isa == super::Isa::Generic {
+        return (0, 0);
+    }
+    let (k8, j8) = (kc / 8 * 8, used / 8 * 8);
+    // depth blocks outer: the 8 destination rows of a block are written whole before the next
+    for k0 in (0..k8).step_by(8) {
+        for j0 in (0..j8).step_by(8) {
+            // E is f32 (checked above): the casts only rename the element type.
+            // SAFETY: AVX is present on every non-portable x86 path; the block lies in the panel.
+            unsafe { transpose8(src.offset(j0 as isize * ps + k0 as isize).cast(), ps, dst.add(k0 * w + j0).cast(), w) };
+        }
+    }
+    (j8, k8)
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+unsafe fn transpose_blocks<E: Float>(_: &Plan<E>, _: usize, _: usize, _: usize, _: *const E, _: isize, _: *mut E)
+                                     -> (usize, usize) {
+    (0, 0)
+}
+
+/// dst[t·ds + i] = src[i·ss + t] for i, t in 0..8: an 8 x 8 transpose in AVX registers.
+///
+/// # Safety
+/// AVX is available; 8 rows of 8 readable floats at `src` (stride ss) and writable at `dst` (stride ds).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn transpose8(src: *const f32, ss: isize, dst: *mut f32, ds: usize) {
+    use std::arch::x86_64::*;
+    // SAFETY: the reads and writes stay in the 8 x 8 blocks of the contract.
+    unsafe {
+        let r: [__m256; 8] = std::array::from_fn(|i| _mm256_loadu_ps(src.offset(i as isize * ss)));
+        // pairs of rows interleaved, then pairs of pairs, then the 128-bit halves swapped into place
+        let t: [__m256; 8] = std::array::from_fn(|i| {
+            let (a, b) = (r[i / 2 * 2], r[i / 2 * 2 + 1]);
+            if i % 2 == 0 { _mm256_unpacklo_ps(a, b) } else { _mm256_unpackhi_ps(a, b) }
+        });
+        let u: [__m256; 8] = std::array::from_fn(|i| {
+            // u[4q + 2h + s] from t[4q + h] and t[4q + h + 2]: s = 0 takes the low pairs, s = 1 the high
+            let (q, h, s) = (i / 4, (i / 2) % 2, i % 2);
+            let (a, b) = (t[4 * q + h], t[4 * q + h + 2]);
+            if s == 0 { _mm256_shuffle_ps::<0x44>(a, b) } else { _mm256_shuffle_ps::<0xEE>(a, b) }
+        });
+        for t in 0..8 {
+            // output row t: 128-bit half t / 4 of u[t % 4] (rows 0-3) and of u[t % 4 + 4] (rows 4-7)
+            let (lo, hi) = (u[t % 4], u[t % 4 + 4]);
+            let o = if t < 4 { _mm256_permute2f128_ps::<0x20>(lo, hi) } else { _mm256_permute2f128_ps::<0x31>(lo, hi) };
+            _mm256_storeu_ps(dst.add(t * ds), o);
+        }
+    }
+}
