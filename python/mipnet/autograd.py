@@ -10,11 +10,13 @@ deals with broadcasting.
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any, Callable
 
 import numpy as np
 
 from . import _core
+from . import profiler as _profiler
 from .errors import DTypeError
 
 _state = threading.local()
@@ -65,6 +67,7 @@ class Context:
     def __init__(self, needs_input_grad: tuple[bool, ...]):
         self.needs_input_grad = needs_input_grad
         self.saved_tensors: tuple = ()
+        self.scope = ""
 
     def save_for_backward(self, *arrays: Any) -> None:
         self.saved_tensors = arrays
@@ -111,7 +114,15 @@ class Function:
         needs = tuple(isinstance(a, Tensor) and a.requires_grad for a in args)
         track = is_grad_enabled() and any(needs)
         ctx = Context(needs)
-        out = cls.forward(ctx, *(a.data if isinstance(a, Tensor) else a for a in args), **kwargs)
+        arrays = [a.data if isinstance(a, Tensor) else a for a in args]
+        prof = _profiler.ACTIVE
+        if prof is None:
+            out = cls.forward(ctx, *arrays, **kwargs)
+        else:
+            ctx.scope = prof.scope()
+            t0, c0 = time.perf_counter(), time.process_time()
+            out = cls.forward(ctx, *arrays, **kwargs)
+            prof.add("forward", ctx.scope, cls.name, time.perf_counter() - t0, time.process_time() - c0)
         result = Tensor._wrap(out, requires_grad=track)
         if track:
             edges = tuple((a if a._node is None else a._node) if isinstance(a, Tensor) and a.requires_grad else None
@@ -162,16 +173,31 @@ def backward(root, grad: np.ndarray) -> None:
         if isinstance(item, Tensor):
             _accumulate(item, g)
             continue
-        in_grads = item.fn.backward(item.ctx, g)
+        prof = _profiler.ACTIVE
+        scope = item.ctx.scope
+        if prof is None:
+            in_grads = item.fn.backward(item.ctx, g)
+        else:
+            t0, c0 = time.perf_counter(), time.process_time()
+            in_grads = item.fn.backward(item.ctx, g)
+            prof.add("backward", scope, item.fn.name, time.perf_counter() - t0, time.process_time() - c0)
         if not isinstance(in_grads, tuple):
             in_grads = (in_grads,)
+        # the node's saved arrays and its output gradient go before its input gradients are summed
+        del g
+        item.fn, item.ctx = None, None
+        if prof is not None:
+            t0, c0 = time.perf_counter(), time.process_time()
         for edge, ig in zip(item.inputs, in_grads):
             if edge is None or ig is None:
                 continue
             ig = unbroadcast(np.asarray(ig, dtype=edge.dtype), edge.shape)
             prev = grads.get(id(edge))
             grads[id(edge)] = ig if prev is None else prev + ig
-        item.fn, item.ctx, item.inputs = None, None, ()
+        if prof is not None:
+            prof.add("backward", scope, "grad accumulate", time.perf_counter() - t0, time.process_time() - c0)
+        item.inputs = ()
+        del in_grads
 
 
 def _accumulate(leaf, g: np.ndarray) -> None:

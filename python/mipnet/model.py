@@ -15,6 +15,7 @@ import numpy as np
 
 from . import ops
 from .autograd import no_grad
+from .profiler import scope
 from .blocks import Encoder, UpdateBlock, ip_update_block, rls_update_block
 from .errors import ArgumentError, ShapeError
 from .nn import BatchNorm2d, Module
@@ -125,22 +126,25 @@ class MIPNet(Module):
              seed: int | None, disp_init: Any) -> list[Tensor]:
         n = left.shape[0]
         # normalise to [-1, 1] as spec a.1 writes it, I' = 2 (I / 255) - 1; replicate-pad both images identically
-        images = ops.pad(Tensor(2 * (np.concatenate([left, right]) / 255) - 1), list(pad), mode="replicate")
-        fl4, fr4 = ops.split(self.encoder(images), [n, n], 0)
-        hidden4 = ops.tanh(fl4[:, :128])
-        context4 = ops.relu(fl4[:, 128:])
-        fl16, fr16, hidden16, context16 = (ops.avg_pool2d(t, 4, 4) for t in (fl4, fr4, hidden4, context4))
+        with scope("encoder"):
+            images = ops.pad(Tensor(2 * (np.concatenate([left, right]) / 255) - 1), list(pad), mode="replicate")
+            fl4, fr4 = ops.split(self.encoder(images), [n, n], 0)
+            hidden4 = ops.tanh(fl4[:, :128])
+            context4 = ops.relu(fl4[:, 128:])
+            fl16, fr16, hidden16, context16 = (ops.avg_pool2d(t, 4, 4) for t in (fl4, fr4, hidden4, context4))
         flow16 = self._initial_flow(n, fl16.shape[2], fl16.shape[3], seed, disp_init)
         collect = self.training
 
         preds: list[Tensor] = []
-        flow, mask = self._iterate(fl16, fr16, hidden16, context16, flow16, n16, preds if collect else None, 4)
+        with scope("level 1/16"):
+            flow, mask = self._iterate(fl16, fr16, hidden16, context16, flow16, n16, preds if collect else None, 4)
         if n4 == 0:
             # eval: the hand-over field, convex x4 then bilinear x4 (spec g.3); training has its 1/16 predictions
             return preds if collect else [self._prediction(flow, mask, 4)]
         with no_grad():  # the hand-over field is detached (spec a.10)
             flow4 = ops.convex_upsample(flow.detach(), mask.detach(), rate=4)
-        self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
+        with scope("level 1/4"):
+            self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
         return preds
 
     def _iterate(self, fl: Tensor, fr: Tensor, hidden: Tensor, context: Tensor, flow: Tensor, iters: int,
