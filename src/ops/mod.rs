@@ -19,6 +19,8 @@
 //! | unfold / fold (any kernel, dilation, zero padding, stride) | `sample::unfold_fwd`, `sample::fold_fwd` | each other | `F.unfold`, `F.fold` |
 //! | IP correlation (seed stack, grouped channel mean) | `corr::ip_corr_fwd` | `corr::ip_corr_bwd` (fl, stack) | view/mul/mean (spec a.6) |
 //! | RLS correlation (rx x ry window) | `corr::rls_corr_fwd` | `corr::rls_corr_bwd` (fl, warped) | pad/slice/mul/mean (spec a.7) |
+//! | IP correlation fused with the horizontal warp (f_y = 0; channels-last features) | `warp_corr::ip_warp_corr_fwd` | `warp_corr::ip_warp_corr_bwd` (fl, fr) | grid_sample + view/mul/mean (spec a.4, a.6) |
+//! | RLS correlation fused with the horizontal warp (f_y = 0; channels-last features) | `warp_corr::rls_warp_corr_fwd` | `warp_corr::rls_warp_corr_bwd` (fl, fr) | grid_sample + pad/slice/mul/mean (spec a.4, a.7) |
 //! | convex x4 upsampling | `upsample::convex_upsample_fwd` | `upsample::convex_upsample_bwd` (flow, mask) | softmax/unfold/sum (spec a.9) |
 //! | masked L1 sequence loss term | `loss::masked_l1_fwd` | `loss::masked_l1_bwd` (pred) | `(d - gt).abs()[valid].mean()` |
 
@@ -26,6 +28,7 @@ pub mod act;
 pub mod conv;
 pub mod corr;
 pub mod elementwise;
+pub mod lanes;
 pub mod loss;
 pub mod norm;
 pub mod pad;
@@ -34,3 +37,4 @@ pub mod sample;
 pub mod shape;
 pub mod softmax;
 pub mod upsample;
+pub mod warp_corr;
