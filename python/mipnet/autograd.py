@@ -93,6 +93,9 @@ class Function:
     """
 
     name = "op"
+    #: True when ``backward`` returns freshly allocated gradients that nothing else references (as the
+    #: Rust kernels do), so the tape may add later contributions into them in place.
+    fresh_grads = False
 
     @staticmethod
     def forward(ctx: Context, *args: Any, **kwargs: Any) -> np.ndarray:
@@ -166,8 +169,10 @@ def backward(root, grad: np.ndarray) -> None:
     if root._node.fn is None:
         raise RuntimeError("backward: trying to backward through the graph a second time")
     grads = {id(root._node): grad}
+    owned: set[int] = set()  # keys whose gradient array the tape alone references (summed into in place)
     for item in reversed(_topological_order(root._node)):
         g = grads.pop(id(item), None)
+        owned.discard(id(item))
         if g is None:
             continue
         if isinstance(item, Tensor):
@@ -184,6 +189,7 @@ def backward(root, grad: np.ndarray) -> None:
         if not isinstance(in_grads, tuple):
             in_grads = (in_grads,)
         # the node's saved arrays and its output gradient go before its input gradients are summed
+        fresh = item.fn.fresh_grads
         del g
         item.fn, item.ctx = None, None
         if prof is not None:
@@ -191,13 +197,33 @@ def backward(root, grad: np.ndarray) -> None:
         for edge, ig in zip(item.inputs, in_grads):
             if edge is None or ig is None:
                 continue
-            ig = unbroadcast(np.asarray(ig, dtype=edge.dtype), edge.shape)
-            prev = grads.get(id(edge))
-            grads[id(edge)] = ig if prev is None else prev + ig
+            _add_grad(grads, owned, edge, ig, fresh)
         if prof is not None:
             prof.add("backward", scope, "grad accumulate", time.perf_counter() - t0, time.process_time() - c0)
         item.inputs = ()
         del in_grads
+
+
+def _add_grad(grads: dict, owned: set, edge, ig: Any, fresh: bool) -> None:
+    """grads[edge] += ig, in place when one of the two arrays belongs to the tape alone: a sum the
+    tape made, or a fresh gradient of a ``fresh_grads`` op (each array of one backward is distinct)."""
+    key = id(edge)
+    full = unbroadcast(np.asarray(ig, dtype=edge.dtype), edge.shape)
+    mine = (fresh and full is ig) or full is not ig  # a reduced gradient is a new array too
+    prev = grads.get(key)
+    if prev is None:
+        grads[key] = full
+        if mine:
+            owned.add(key)
+    elif key in owned:
+        np.add(prev, full, out=prev)
+    elif mine:
+        np.add(full, prev, out=full)
+        grads[key] = full
+        owned.add(key)
+    else:
+        grads[key] = prev + full
+        owned.add(key)
 
 
 def _accumulate(leaf, g: np.ndarray) -> None:

@@ -215,10 +215,12 @@ class UpdateBlock(Module):
         self.disp_head = DispHead(hidden, head_mid)
         self.mask_head = MaskHead(hidden)
 
-    def forward(self, h: Tensor, context: Tensor, corr: Tensor, flow: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def forward(self, h: Tensor, context: Tensor, corr: Tensor, flow: Tensor,
+                with_mask: bool = True) -> tuple[Tensor, Tensor | None, Tensor]:
+        """(h', mask or None when ``with_mask`` is off, delta)."""
         x = ops.cat([context, self.motion(flow, corr)], 1)
         h = self.gru(h, x)
-        return h, self.mask_head(h), self.disp_head(h)
+        return h, self.mask_head(h) if with_mask else None, self.disp_head(h)
 
 
 def ip_update_block(hidden: int = 128, context: int = 128) -> UpdateBlock:

@@ -17,6 +17,7 @@ __all__ = ["cat", "split", "narrow", "index", "reshape", "permute", "flatten"]
 
 class _Cat(Function):
     name = "cat"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, *xs, dim):
@@ -46,6 +47,7 @@ def cat(tensors: Sequence[Tensor], dim: int = 0) -> Tensor:
 
 class _Slice(Function):
     name = "slice"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, axis, start, stop):
