@@ -109,7 +109,8 @@ class Encoder(Module):
 
 
 class IPMotionEncoder(Module):
-    """DIP SmallMotionEncoder: corr (10) and flow (2) -> 96 motion channels (94 + the flow)."""
+    """DIP SmallMotionEncoder: corr (10) and flow (2) -> 94 motion channels; DIP appends the flow
+    (96 channels), which :class:`UpdateBlock` does when it assembles the GRU input."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -121,11 +122,12 @@ class IPMotionEncoder(Module):
     def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
         a = ops.relu(self.corr1(corr))
         b = ops.relu(self.flow2(ops.relu(self.flow1(flow))))
-        return ops.cat([ops.relu(self.out(ops.cat([a, b], 1))), flow], 1)
+        return ops.relu(self.out(ops.cat([a, b], 1)))
 
 
 class RLSMotionEncoder(Module):
-    """DIP BasicMotionEncoder: corr (21) and flow (2) -> 128 motion channels (126 + the flow)."""
+    """DIP BasicMotionEncoder: corr (21) and flow (2) -> 126 motion channels (128 with the flow that
+    :class:`UpdateBlock` appends)."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -138,20 +140,23 @@ class RLSMotionEncoder(Module):
     def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
         a = ops.relu(self.corr2(ops.relu(self.corr1(corr))))
         b = ops.relu(self.flow2(ops.relu(self.flow1(flow))))
-        return ops.cat([ops.relu(self.out(ops.cat([a, b], 1))), flow], 1)
+        return ops.relu(self.out(ops.cat([a, b], 1)))
 
 
-def _gru_step(convz: Conv2d, convr: Conv2d, convq: Conv2d, h: Tensor, x: Tensor) -> Tensor:
-    """z = σ(Wz [h,x]); r = σ(Wr [h,x]); q = tanh(Wq [r h, x]); h' = (1 - z) h + z q."""
-    hx = ops.cat([h, x], 1)
-    z = ops.sigmoid(convz(hx))
-    r = ops.sigmoid(convr(hx))
-    q = ops.tanh(convq(ops.cat([r * h, x], 1)))
-    return (1 - z) * h + z * q
+def _gru_pass(convz: Conv2d, convr: Conv2d, convq: Conv2d, hx: Tensor, keep_x: bool) -> Tensor:
+    """One GRU pass on hx = [h, x]: z = σ(Wz hx); r = σ(Wr hx); q = tanh(Wq [r h, x]);
+    h' = (1 - z) h + z q. z and r come from one convolution (convz's and convr's weights stacked
+    along the output channels: one GEMM), the gate arithmetic from two fused kernels. Returns h', or
+    [h', x] (the next pass's input) with ``keep_x``."""
+    w = ops.cat([convz.weight, convr.weight], 0)
+    b = ops.cat([convz.bias, convr.bias], 0)
+    zr = ops.conv2d(hx, w, b, convz.stride, convz.padding)
+    q = convq(ops.gru_reset(zr, hx))
+    return ops.gru_update(zr, q, hx, keep_x)
 
 
 class ConvGRU(Module):
-    """3x3 convolutional GRU (paper §3.2.2)."""
+    """3x3 convolutional GRU (paper §3.2.2). ``forward(hx)`` takes hx = cat[h, x], returns h'."""
 
     def __init__(self, hidden: int, inp: int):
         super().__init__()
@@ -159,12 +164,13 @@ class ConvGRU(Module):
         self.convr = Conv2d(hidden + inp, hidden, 3, padding=1)
         self.convq = Conv2d(hidden + inp, hidden, 3, padding=1)
 
-    def forward(self, h: Tensor, x: Tensor) -> Tensor:
-        return _gru_step(self.convz, self.convr, self.convq, h, x)
+    def forward(self, hx: Tensor) -> Tensor:
+        return _gru_pass(self.convz, self.convr, self.convq, hx, keep_x=False)
 
 
 class SepConvGRU(Module):
-    """Separable GRU: a (1,5) horizontal pass, then a (5,1) vertical pass (DIP/RAFT)."""
+    """Separable GRU: a (1,5) horizontal pass, then a (5,1) vertical pass (DIP/RAFT), both on the same x.
+    ``forward(hx)`` takes hx = cat[h, x], returns h'."""
 
     def __init__(self, hidden: int, inp: int):
         super().__init__()
@@ -176,9 +182,9 @@ class SepConvGRU(Module):
         self.convr_v = Conv2d(c, hidden, (5, 1), padding=(2, 0))
         self.convq_v = Conv2d(c, hidden, (5, 1), padding=(2, 0))
 
-    def forward(self, h: Tensor, x: Tensor) -> Tensor:
-        h = _gru_step(self.convz_h, self.convr_h, self.convq_h, h, x)
-        return _gru_step(self.convz_v, self.convr_v, self.convq_v, h, x)
+    def forward(self, hx: Tensor) -> Tensor:
+        hx = _gru_pass(self.convz_h, self.convr_h, self.convq_h, hx, keep_x=True)
+        return _gru_pass(self.convz_v, self.convr_v, self.convq_v, hx, keep_x=False)
 
 
 class DispHead(Module):
@@ -218,8 +224,8 @@ class UpdateBlock(Module):
     def forward(self, h: Tensor, context: Tensor, corr: Tensor, flow: Tensor,
                 with_mask: bool = True) -> tuple[Tensor, Tensor | None, Tensor]:
         """(h', mask or None when ``with_mask`` is off, delta)."""
-        x = ops.cat([context, self.motion(flow, corr)], 1)
-        h = self.gru(h, x)
+        # the GRU input [h, x] with x = [context, motion, flow] (spec a.8), assembled in one copy
+        h = self.gru(ops.cat([h, context, self.motion(flow, corr), flow], 1))
         return h, self.mask_head(h) if with_mask else None, self.disp_head(h)
 
 

@@ -8,6 +8,8 @@
 //! | sum to a broadcast shape | `elementwise::sum_to_shape` | broadcast | `g.sum_to_size(shape)` |
 //! | mean over axes | `elementwise::mean_fwd` | `elementwise::mean_bwd` | `x.mean(dim, keepdim)` |
 //! | cat / slice along an axis | `shape::cat_fwd`, `shape::slice_fwd` | `shape::slice_bwd` | `torch.cat`, `x[..., a:b]` |
+//! | GRU reset gate: [σ(r̃) ⊙ h, x] | `gru::gru_reset_fwd` | `gru::gru_reset_bwd` (zr, hx) | `torch.cat([torch.sigmoid(r) * h, x], 1)` |
+//! | GRU update: (1 - σ(z̃)) ⊙ h + σ(z̃) ⊙ tanh(q̃) (optionally followed by x) | `gru::gru_update_fwd` | `gru::gru_update_bwd` (zr, q, hx) | sigmoid/tanh/mul/add (spec a.8) |
 //! | conv2d (any kernel, stride, per-axis zero padding, bias) | `conv::conv2d_fwd` | `conv::conv2d_bwd` (x, w, b) | `F.conv2d` |
 //! | instance norm (optional affine) | `norm::instance_norm_fwd` | `norm::instance_norm_bwd` (x, w, b) | `F.instance_norm` |
 //! | batch norm (train / eval) | `norm::batch_norm_fwd` | `norm::batch_norm_bwd` (x, w, b) | `F.batch_norm` |
@@ -28,6 +30,7 @@ pub mod act;
 pub mod conv;
 pub mod corr;
 pub mod elementwise;
+pub mod gru;
 pub mod lanes;
 pub mod loss;
 pub mod norm;

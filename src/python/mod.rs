@@ -8,6 +8,7 @@ mod convert;
 mod corr;
 mod elementwise;
 mod errors;
+mod gru;
 mod loss;
 mod norm;
 mod pad;
@@ -46,6 +47,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     conv::register(m)?;
     corr::register(m)?;
     elementwise::register(m)?;
+    gru::register(m)?;
     loss::register(m)?;
     norm::register(m)?;
     pad::register(m)?;
