@@ -48,3 +48,23 @@ pub fn zeros<F: crate::Float, D: Dimension>(op: &'static str, shape: impl ndarra
     unsafe { v.set_len(len) };
     Ok(ndarray::Array::from_shape_vec(dim, v).expect("length equals the shape's size"))
 }
+
+/// Elements per task of [`par_filled`].
+const FILL_CHUNK: usize = 1 << 16;
+
+/// A standard-layout array of `shape` whose flat elements are written in parallel: `fill(start, chunk)`
+/// must write every element of `chunk`, which holds the flat indices start..start + chunk.len().
+/// Errors as [`zeros`] for shapes too large to allocate.
+pub fn par_filled<F: crate::Float>(op: &'static str, shape: &[usize],
+                                   fill: impl Fn(usize, &mut [std::mem::MaybeUninit<F>]) + Sync) -> Result<ndarray::ArrayD<F>> {
+    use rayon::prelude::*;
+    let too_big = || Error::shape(op, "the output is too large to allocate", &[("output", shape)]);
+    let len = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))
+        .filter(|&n| n.checked_mul(std::mem::size_of::<F>()).is_some_and(|b| b <= isize::MAX as usize)).ok_or_else(too_big)?;
+    let mut v = Vec::<F>::new();
+    v.try_reserve_exact(len).map_err(|_| too_big())?;
+    v.spare_capacity_mut()[..len].par_chunks_mut(FILL_CHUNK).enumerate().for_each(|(k, c)| fill(k * FILL_CHUNK, c));
+    // SAFETY: `fill` wrote every element of every chunk, which together cover the first `len` elements.
+    unsafe { v.set_len(len) };
+    Ok(ndarray::ArrayD::from_shape_vec(ndarray::IxDyn(shape), v).expect("length equals the shape's size"))
+}
