@@ -134,6 +134,53 @@ class Function:
         return result
 
 
+class _Checkpoint:
+    """The tape entry of :func:`checkpoint`: its backward re-runs the function with recording on and
+    back-propagates through that fresh graph (the profiler shows the re-run's ops in scope "recompute")."""
+
+    name = "checkpoint"
+    fresh_grads = True
+
+    @staticmethod
+    def backward(ctx: Context, g: np.ndarray) -> tuple:
+        from .tensor import Tensor
+
+        xs = [Tensor._wrap(a, requires_grad=need) for a, need in zip(ctx.saved_tensors, ctx.needs_input_grad)]
+        state = [(m, {k: np.array(v, copy=True) for k, v in m._buffers.items()}) for m in ctx.modules]
+        with enable_grad(), _profiler.scope("recompute"):
+            y = ctx.fn(*xs)
+        for m, buffers in state:  # the recomputation must not count twice in running statistics
+            m._buffers.update(buffers)
+        backward(y, g)
+        return tuple(None if x.grad is None else x.grad.data for x in xs)
+
+
+def checkpoint(fn: Callable, *inputs: Any, modules: Any = ()) -> Any:
+    """``fn(*inputs)`` without keeping its intermediate activations (``torch.utils.checkpoint``): the
+    forward runs unrecorded, only ``inputs`` are saved, and the backward runs ``fn`` again to
+    differentiate it. Worth it where ``fn`` is cheap to recompute and its activations are large.
+
+    ``fn`` takes and returns Tensors; parameters used inside receive gradients as usual. ``modules``:
+    the modules ``fn`` runs, whose buffers (BatchNorm running statistics) are restored after the
+    recomputation, so they are updated once, by the forward.
+    """
+    from .tensor import Tensor
+
+    tensors = [a for a in inputs if isinstance(a, Tensor)]
+    if not is_grad_enabled() or len(tensors) != len(inputs):
+        return fn(*inputs)
+    mods = [m for top in modules for m in top.modules()]
+    with no_grad():
+        out = fn(*(Tensor._wrap(t.data) for t in tensors))
+    ctx = Context(tuple(t.requires_grad for t in tensors))
+    ctx.saved_tensors = tuple(t.data for t in tensors)
+    ctx.fn, ctx.modules = fn, mods
+    result = Tensor._wrap(out.data, requires_grad=True)
+    edges = tuple((t if t._node is None else t._node) if t.requires_grad else None for t in tensors)
+    result._node = _Node(_Checkpoint, ctx, edges, out.data.shape, out.data.dtype)
+    return result
+
+
 def unbroadcast(grad: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """Sums a gradient of a broadcast result back to the shape of the input it came from."""
     if grad.shape == tuple(shape):
@@ -180,7 +227,7 @@ def backward(root, grad: np.ndarray) -> None:
             continue
         prof = _profiler.ACTIVE
         scope = item.ctx.scope
-        if prof is None:
+        if prof is None or item.fn is _Checkpoint:  # a checkpoint's ops are timed one by one
             in_grads = item.fn.backward(item.ctx, g)
         else:
             t0, c0 = time.perf_counter(), time.process_time()

@@ -7,6 +7,7 @@ key table (f.2) and weights move unchanged between mipnet and PyTorch.
 from __future__ import annotations
 
 from . import ops
+from .autograd import checkpoint
 from .nn import BatchNorm2d, Conv2d, InstanceNorm2d, Module, Sequential, init
 from .tensor import Tensor
 
@@ -74,7 +75,11 @@ class ResBlock(Module):
         y = ops.relu(self.norm1(self.conv1(x)))
         y = ops.relu(self.norm2(self.conv2(y)))
         xp = self.norm3(self.proj(x))
-        return ops.relu(self.fuse(y, xp) if self.use_aff else xp + y)
+        if not self.use_aff:
+            return ops.relu(xp + y)
+        # iAFF's activations (about 9 maps of cout channels) are recomputed in the backward instead of
+        # kept: its 1x1 convolutions and gates cost little next to the block's 3x3 convolutions
+        return ops.relu(checkpoint(self.fuse, y, xp, modules=(self.fuse,)))
 
 
 class Stem(Module):
@@ -109,8 +114,9 @@ class Encoder(Module):
 
 
 class IPMotionEncoder(Module):
-    """DIP SmallMotionEncoder: corr (10) and flow (2) -> 94 motion channels; DIP appends the flow
-    (96 channels), which :class:`UpdateBlock` does when it assembles the GRU input."""
+    """DIP SmallMotionEncoder: corr (10) and flow (2) -> 94 motion channels before their ReLU; DIP
+    applies it and appends the flow (96 channels), which :class:`UpdateBlock` does when it assembles
+    the GRU input."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -120,14 +126,13 @@ class IPMotionEncoder(Module):
         self.out = Conv2d(128, 94, 3, padding=1)
 
     def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
-        a = ops.relu(self.corr1(corr))
-        b = ops.relu(self.flow2(ops.relu(self.flow1(flow))))
-        return ops.relu(self.out(ops.cat([a, b], 1)))
+        ab = ops.cat_relu([self.corr1(corr), self.flow2(ops.relu(self.flow1(flow)))], [True, True], 1)
+        return self.out(ab)
 
 
 class RLSMotionEncoder(Module):
-    """DIP BasicMotionEncoder: corr (21) and flow (2) -> 126 motion channels (128 with the flow that
-    :class:`UpdateBlock` appends)."""
+    """DIP BasicMotionEncoder: corr (21) and flow (2) -> 126 motion channels before their ReLU (128
+    with the flow; :class:`UpdateBlock` applies the ReLU and appends the flow)."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -138,9 +143,9 @@ class RLSMotionEncoder(Module):
         self.out = Conv2d(192, 126, 3, padding=1)
 
     def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
-        a = ops.relu(self.corr2(ops.relu(self.corr1(corr))))
-        b = ops.relu(self.flow2(ops.relu(self.flow1(flow))))
-        return ops.relu(self.out(ops.cat([a, b], 1)))
+        a = self.corr2(ops.relu(self.corr1(corr)))
+        b = self.flow2(ops.relu(self.flow1(flow)))
+        return self.out(ops.cat_relu([a, b], [True, True], 1))
 
 
 def _gru_pass(convz: Conv2d, convr: Conv2d, convq: Conv2d, hx: Tensor, keep_x: bool) -> Tensor:
@@ -224,8 +229,8 @@ class UpdateBlock(Module):
     def forward(self, h: Tensor, context: Tensor, corr: Tensor, flow: Tensor,
                 with_mask: bool = True) -> tuple[Tensor, Tensor | None, Tensor]:
         """(h', mask or None when ``with_mask`` is off, delta)."""
-        # the GRU input [h, x] with x = [context, motion, flow] (spec a.8), assembled in one copy
-        h = self.gru(ops.cat([h, context, self.motion(flow, corr), flow], 1))
+        # the GRU input [h, x] with x = [context, ReLU(motion), flow] (spec a.8), assembled in one copy
+        h = self.gru(ops.cat_relu([h, context, self.motion(flow, corr), flow], [False, False, True, False], 1))
         return h, self.mask_head(h) if with_mask else None, self.disp_head(h)
 
 

@@ -14,7 +14,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import ops
-from .autograd import no_grad
+from .autograd import checkpoint, is_grad_enabled, no_grad
 from .profiler import scope
 from .blocks import Encoder, UpdateBlock, ip_update_block, rls_update_block
 from .errors import ArgumentError, ShapeError
@@ -156,15 +156,23 @@ class MIPNet(Module):
         operands = _CorrelationOperands(fl, fr, self.config)
         blocks = self._blocks()
         every = preds is not None and bilinear is not None
+        # training: each prediction's mask head and upsampling are recomputed in the backward rather
+        # than kept (about 400 maps of the level per sub-update)
+        recompute = every and is_grad_enabled()
         mask = None
         for t in range(iters):
             for b, (name, block) in enumerate(blocks):
                 flow = flow.detach()
                 corr = operands.correlation(name, flow)
                 last = t == iters - 1 and b == len(blocks) - 1
-                hidden, mask, delta = block(hidden, context, corr, flow, with_mask=every or last)
+                hidden, mask, delta = block(hidden, context, corr, flow, with_mask=(every or last) and not recompute)
                 flow = flow + (_vertical_constraint(delta) if self.config.vertical_constraint else delta)
-                if preds is not None and (bilinear is not None or last):
+                if recompute:
+                    preds.append(checkpoint(lambda h, f, m=block.mask_head: self._prediction(f, m(h), bilinear), hidden, flow))
+                    if last:
+                        with no_grad():  # the hand-over mask (detached, spec a.10)
+                            mask = block.mask_head(hidden)
+                elif preds is not None and (bilinear is not None or last):
                     preds.append(self._prediction(flow, mask, bilinear or 1))
         return flow, mask
 
