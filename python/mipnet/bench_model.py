@@ -156,7 +156,7 @@ else:
         t0 = time.perf_counter(); out = run(); seconds.append(time.perf_counter() - t0)
 np.save(a["out"], np.asarray(out))
 print(json.dumps({"seconds": seconds, "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-                  "table": profile.table() if profile is not None else None}))
+                  "table": profile.table() + "\n\n" + profile.scope_table() if profile is not None else None}))
 """
 
 # Exports the torch reference's eval forward (fixed size, iterations unrolled) to ONNX, opset 17.

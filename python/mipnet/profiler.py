@@ -130,6 +130,22 @@ class Profile:
         return "\n".join(lines)
 
 
+    def scope_table(self) -> str:
+        """One row per :func:`scope` label (ops outside any scope: "(none)"): op time, share of the
+        profiled wall time and CPU/wall, e.g. to see whether both cores are busy at the 1/16 level."""
+        rows: dict[str, _Stat] = {}
+        for (phase, scope, _), s in self.stats.items():
+            t = rows.setdefault(f"{scope or '(none)'} {phase}", _Stat())
+            t.count, t.wall, t.cpu = t.count + s.count, t.wall + s.wall, t.cpu + s.cpu
+        total = self.wall if self.wall > 0 else sum(s.wall for s in rows.values())
+        head = f"{'scope, phase':<28} {'ops':>7} {'op time s':>10} {'share':>6} {'CPU/wall':>8}"
+        lines = [head, "-" * len(head)]
+        for name, s in sorted(rows.items(), key=lambda kv: -kv[1].wall):
+            lines.append(f"{name:<28} {s.count:>7d} {s.wall:>10.3f} {100 * s.wall / total:>5.1f}% "
+                         f"{s.cpu / s.wall if s.wall > 0 else 0:>8.2f}")
+        return "\n".join(lines)
+
+
 @contextmanager
 def profile() -> Iterator[Profile]:
     """Profiles the ops run inside the block (forward and backward); yields the :class:`Profile`.
