@@ -55,3 +55,13 @@ def test_gru_errors_name_op_and_shapes():
         M.gru_reset(mipnet.tensor(rand((1, 6, 2, 2))), mipnet.tensor(rand((1, 5, 2, 3))))
     with pytest.raises(RuntimeError, match=r"gru_update.*q=\[1, 2, 2, 2\]"):
         M.gru_update(mipnet.tensor(rand((1, 6, 2, 2))), mipnet.tensor(rand((1, 2, 2, 2))), mipnet.tensor(rand((1, 5, 2, 2))))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_attention_gate_matches_torch(dtype):
+    def gate_torch(local, glob, x, y):
+        w = torch.sigmoid(local + glob)
+        return w * x + (1 - w) * y
+
+    check_op([rand((2, 3, 4, 5), low=-3, high=3), rand((2, 3, 1, 1), seed=1), rand((2, 3, 4, 5), seed=2),
+              rand((2, 3, 4, 5), seed=3)], gate_torch, M.attention_gate, dtype=dtype)

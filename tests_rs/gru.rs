@@ -1,4 +1,5 @@
-//! GRU gate kernels: forwards against the unfused formulas, f64 gradchecks of every gradient, errors.
+//! Fused pointwise kernels: GRU gates (forwards against the unfused formulas, f64 gradchecks, errors), the
+//! iAFF attentional gate, and the vectorisable exp/tanh/sigmoid of `lanes`.
 mod common;
 
 use _core::ops::gru::*;
@@ -76,4 +77,46 @@ fn gru_gates_reject_mismatched_shapes() {
     let g = ArrayD::<f32>::zeros(IxDyn(&[1, 5, 2, 2]));
     let err = gru_update_bwd(zr.view(), q.view(), hx.view(), g.view(), false).unwrap_err().to_string();
     assert!(err.contains("gru_update") && err.contains("[1, 5, 2, 2]"), "{err}");
+}
+
+#[test]
+fn vectorisable_exp_tanh_sigmoid_f32_are_within_a_few_ulp_of_libm() {
+    use _core::ops::lanes::{exp, sigmoid, tanh};
+    let ulp = |a: f32, b: f32| ((a - b).abs() / (b.abs().max(f32::MIN_POSITIVE) * f32::EPSILON)) as f64;
+    let (mut worst_exp, mut worst_tanh, mut worst_sig) = (0f64, 0f64, 0f64);
+    for i in 0..200_001 {
+        let x = -40.0 + 80.0 * i as f32 / 200_000.0;
+        worst_exp = worst_exp.max(ulp(exp(x), x.exp()));
+        worst_tanh = worst_tanh.max(ulp(tanh(x), x.tanh()));
+        worst_sig = worst_sig.max(ulp(sigmoid(x), 1.0 / (1.0 + (-x).exp())));
+    }
+    assert!(worst_exp <= 2.0 && worst_tanh <= 3.0 && worst_sig <= 3.0, "exp {worst_exp} tanh {worst_tanh} sigmoid {worst_sig} ulp");
+    assert_eq!(exp(-100f32), exp(-87.4f32));
+    assert!(exp(100f32).is_finite() && tanh(30f32) == 1.0 && tanh(-30f32) == -1.0 && tanh(0f32) == 0.0);
+    // f64 is the platform's
+    assert_eq!(tanh(0.3f64), 0.3f64.tanh());
+}
+
+#[test]
+fn attention_gate_equals_formula_and_passes_gradcheck_f64() {
+    use _core::ops::gate::*;
+    let mut rng = Rng::new(64);
+    let (n, c, h, w) = (2, 3, 2, 3);
+    let (l, gl) = (rng.array(&[n, c, h, w], -2.0, 2.0), rng.array(&[n, c, 1, 1], -1.0, 1.0));
+    let (x, y) = (rng.array(&[n, c, h, w], -1.0, 1.0), rng.array(&[n, c, h, w], -1.0, 1.0));
+    let out = attention_gate_fwd(l.view(), gl.view(), x.view(), y.view()).unwrap().into_dyn();
+    let wgt = (&l + &gl).mapv(sig);
+    let want = &wgt * &x + &(1.0 - &wgt) * &y;
+    assert!(max_abs_diff(&out, &want) < 1e-15);
+    let g = rng.array(&[n, c, h, w], -1.0, 1.0);
+    let r = attention_gate_bwd(l.view(), gl.view(), x.view(), y.view(), g.view()).unwrap();
+    let loss = |a: &ArrayD<f64>, b: &ArrayD<f64>, cc: &ArrayD<f64>, d: &ArrayD<f64>| {
+        dot(&attention_gate_fwd(a.view(), b.view(), cc.view(), d.view()).unwrap().into_dyn(), &g)
+    };
+    gradcheck("gate local", &l, &r.local.into_dyn(), |a| loss(a, &gl, &x, &y));
+    gradcheck("gate global", &gl, &r.global.into_dyn(), |b| loss(&l, b, &x, &y));
+    gradcheck("gate x", &x, &r.x.into_dyn(), |cc| loss(&l, &gl, cc, &y));
+    gradcheck("gate y", &y, &r.y.into_dyn(), |d| loss(&l, &gl, &x, d));
+    let err = attention_gate_fwd(l.view(), l.view(), x.view(), y.view()).unwrap_err().to_string();
+    assert!(err.contains("attention_gate") && err.contains("global=[2, 3, 2, 3]"), "{err}");
 }

@@ -34,9 +34,13 @@ class MSCAM(Module):
         self.local = MSCAMBranch(c, r)
         self.add_module("global", MSCAMBranch(c, r))
 
+    def logits(self, z: Tensor) -> tuple[Tensor, Tensor]:
+        """(L(Z), G(GAP(Z))): the local (N, C, H, W) and global (N, C, 1, 1) terms before the sigmoid."""
+        return self.local(z), getattr(self, "global")(ops.mean(z, (2, 3), keepdim=True))
+
     def forward(self, z: Tensor) -> Tensor:
-        gap = ops.mean(z, (2, 3), keepdim=True)
-        return ops.sigmoid(self.local(z) + getattr(self, "global")(gap))
+        local, glob = self.logits(z)
+        return ops.sigmoid(local + glob)
 
 
 class IAFF(Module):
@@ -48,13 +52,10 @@ class IAFF(Module):
         self.att1 = MSCAM(c, r)
         self.att2 = MSCAM(c, r)
 
-    @staticmethod
-    def _gate(w: Tensor, x: Tensor, y: Tensor) -> Tensor:
-        return w * x + (1 - w) * y
-
     def forward(self, x: Tensor, y: Tensor) -> Tensor:
-        z1 = self._gate(self.att1(x + y), x, y)
-        return self._gate(self.att2(z1), x, y)
+        # each gate w x + (1 - w) y with w = M(.) is one fused kernel (sigmoid included)
+        z1 = ops.attention_gate(*self.att1.logits(x + y), x, y)
+        return ops.attention_gate(*self.att2.logits(z1), x, y)
 
 
 class ResBlock(Module):

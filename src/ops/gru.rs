@@ -13,6 +13,7 @@
 //! Backwards recompute σ and tanh from the pre-activations (nothing else is saved); work is split by
 //! output planes, so results are deterministic.
 
+use super::lanes::{multiversion, sigmoid, tanh};
 use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, Ix4};
@@ -21,10 +22,53 @@ use rayon::prelude::*;
 const RESET: &str = "gru_reset";
 const UPDATE: &str = "gru_update";
 
-/// σ(v) = 1 / (1 + e^-v), as `act::unary_fwd` computes it.
-#[inline(always)]
-fn sigmoid<F: Float>(v: F) -> F {
-    F::one() / (F::one() + (-v).exp())
+multiversion! {
+    /// o = σ(r̃) ⊙ h.
+    fn reset_plane<F: Float>(o: &mut [F], r: &[F], h: &[F]) {
+        o.iter_mut().zip(r).zip(h).for_each(|((o, &r), &h)| *o = sigmoid(r) * h);
+    }
+}
+
+multiversion! {
+    /// d r̃ = g · h · r(1 - r) with r = σ(r̃).
+    fn reset_dr_plane<F: Float>(o: &mut [F], r: &[F], h: &[F], g: &[F]) {
+        o.iter_mut().zip(r).zip(h).zip(g).for_each(|(((o, &r), &h), &g)| {
+            let r = sigmoid(r);
+            *o = g * h * (r * (F::one() - r));
+        });
+    }
+}
+
+multiversion! {
+    /// d h = g · σ(r̃) (reset) or g · (1 - σ(z̃)) (update, `one_minus`).
+    fn gate_dh_plane<F: Float>(o: &mut [F], a: &[F], g: &[F], one_minus: bool) {
+        if one_minus {
+            o.iter_mut().zip(a).zip(g).for_each(|((o, &a), &g)| *o = g * (F::one() - sigmoid(a)));
+        } else {
+            o.iter_mut().zip(a).zip(g).for_each(|((o, &a), &g)| *o = g * sigmoid(a));
+        }
+    }
+}
+
+multiversion! {
+    /// h' = (1 - z)·h + z·tanh(q̃) with z = σ(z̃).
+    fn update_plane<F: Float>(o: &mut [F], z: &[F], q: &[F], h: &[F]) {
+        o.iter_mut().zip(z).zip(q).zip(h).for_each(|(((o, &z), &q), &h)| {
+            let z = sigmoid(z);
+            *o = (F::one() - z) * h + z * tanh(q);
+        });
+    }
+}
+
+multiversion! {
+    /// d z̃ = g·(tanh(q̃) - h)·z(1 - z) into dz, d q̃ = g·z·(1 - tanh²(q̃)) into dq.
+    fn update_dzq_plane<F: Float>(dz: &mut [F], dq: &mut [F], z: &[F], q: &[F], h: &[F], g: &[F]) {
+        for i in 0..dz.len().min(dq.len()).min(z.len()).min(q.len()).min(h.len()).min(g.len()) {
+            let (zs, t) = (sigmoid(z[i]), tanh(q[i]));
+            dz[i] = g[i] * (t - h[i]) * (zs * (F::one() - zs));
+            dq[i] = g[i] * zs * (F::one() - t * t);
+        }
+    }
 }
 
 /// Sizes of one call: batch, hidden channels H, input channels X, plane size h·w.
@@ -101,8 +145,7 @@ pub fn gru_reset_fwd<F: Float>(zr: ArrayViewD<F>, hx: ArrayViewD<F>) -> Result<A
         let src = d.plane(hs, k_hx, b, k);
         if k < d.hid {
             // r = σ(zr[H + k]); out = r ⊙ h[k]
-            let r = d.plane(zs, 2 * d.hid, b, d.hid + k);
-            o.iter_mut().zip(r).zip(src).for_each(|((o, &r), &h)| *o = sigmoid(r) * h);
+            reset_plane(o, d.plane(zs, 2 * d.hid, b, d.hid + k), src);
         } else {
             o.copy_from_slice(src);
         }
@@ -134,20 +177,15 @@ pub fn gru_reset_bwd<F: Float>(zr: ArrayViewD<F>, hx: ArrayViewD<F>, g: ArrayVie
     let k_hx = d.hid + d.x;
     let dzr = planes(RESET, [d.n, 2 * d.hid, shape_hx[2], shape_hx[3]], |b, k, o| {
         if k >= d.hid {
-            let (r, h, go) = (d.plane(zs, 2 * d.hid, b, k), d.plane(hs, k_hx, b, k - d.hid), d.plane(gs, k_hx, b, k - d.hid));
             // d r̃ = g · h · r(1 - r)
-            o.iter_mut().zip(r).zip(h).zip(go).for_each(|(((o, &r), &h), &go)| {
-                let r = sigmoid(r);
-                *o = go * h * (r * (F::one() - r));
-            });
+            reset_dr_plane(o, d.plane(zs, 2 * d.hid, b, k), d.plane(hs, k_hx, b, k - d.hid), d.plane(gs, k_hx, b, k - d.hid));
         }
     })?;
     let dhx = planes(RESET, shape_hx, |b, k, o| {
         let go = d.plane(gs, k_hx, b, k);
         if k < d.hid {
             // d h = g · r
-            let r = d.plane(zs, 2 * d.hid, b, d.hid + k);
-            o.iter_mut().zip(r).zip(go).for_each(|((o, &r), &go)| *o = go * sigmoid(r));
+            gate_dh_plane(o, d.plane(zs, 2 * d.hid, b, d.hid + k), go, false);
         } else {
             o.copy_from_slice(go);
         }
@@ -174,12 +212,8 @@ pub fn gru_update_fwd<F: Float>(zr: ArrayViewD<F>, q: ArrayViewD<F>, hx: ArrayVi
     planes(UPDATE, [d.n, k_out, hx.shape()[2], hx.shape()[3]], |b, k, o| {
         let src = d.plane(hs, k_hx, b, k);
         if k < d.hid {
-            let (z, qq) = (d.plane(zs, 2 * d.hid, b, k), d.plane(qs, d.hid, b, k));
             // h' = (1 - z)·h + z·tanh(q̃)
-            o.iter_mut().zip(z).zip(qq).zip(src).for_each(|(((o, &z), &q), &h)| {
-                let z = sigmoid(z);
-                *o = (F::one() - z) * h + z * q.tanh();
-            });
+            update_plane(o, d.plane(zs, 2 * d.hid, b, k), d.plane(qs, d.hid, b, k), src);
         } else {
             o.copy_from_slice(src);
         }
@@ -217,29 +251,21 @@ pub fn gru_update_bwd<F: Float>(zr: ArrayViewD<F>, q: ArrayViewD<F>, hx: ArrayVi
         hx.as_slice().expect("standard layout"),
         g.as_slice().expect("standard layout"),
     );
-    let dzr = planes(UPDATE, [d.n, 2 * d.hid, hh, ww], |b, k, o| {
-        if k < d.hid {
-            let (z, qq, h, go) = (d.plane(zs, 2 * d.hid, b, k), d.plane(qs, d.hid, b, k), d.plane(hs, k_hx, b, k), d.plane(gs, k_out, b, k));
-            // d z̃ = g·(t - h)·z(1 - z)
-            for (i, o) in o.iter_mut().enumerate() {
-                let z = sigmoid(z[i]);
-                *o = go[i] * (qq[i].tanh() - h[i]) * (z * (F::one() - z));
-            }
-        }
-    })?;
-    let dq = planes(UPDATE, [d.n, d.hid, hh, ww], |b, k, o| {
-        let (z, qq, go) = (d.plane(zs, 2 * d.hid, b, k), d.plane(qs, d.hid, b, k), d.plane(gs, k_out, b, k));
-        // d q̃ = g·z·(1 - t²)
-        o.iter_mut().zip(z).zip(qq).zip(go).for_each(|(((o, &z), &q), &go)| {
-            let t = q.tanh();
-            *o = go * sigmoid(z) * (F::one() - t * t);
+    let mut dzr = zeros(UPDATE, (d.n, 2 * d.hid, hh, ww))?;
+    let mut dq = zeros(UPDATE, (d.n, d.hid, hh, ww))?;
+    {
+        let (dzs, dqs) = (dzr.as_slice_mut().expect("fresh array"), dq.as_slice_mut().expect("fresh array"));
+        // image b: dz̃ is the first H planes of dzr[b] (2H planes), dq̃ all H planes of dq[b]
+        dzs.par_chunks_mut(2 * d.hid * d.plane).zip(dqs.par_chunks_mut(d.hid * d.plane)).enumerate().for_each(|(b, (dzi, dqi))| {
+            dzi[..d.hid * d.plane].par_chunks_mut(d.plane).zip(dqi.par_chunks_mut(d.plane)).enumerate().for_each(|(k, (dz, dqp))| {
+                update_dzq_plane(dz, dqp, d.plane(zs, 2 * d.hid, b, k), d.plane(qs, d.hid, b, k), d.plane(hs, k_hx, b, k), d.plane(gs, k_out, b, k));
+            });
         });
-    })?;
+    }
     let dhx = planes(UPDATE, [d.n, k_hx, hh, ww], |b, k, o| {
         if k < d.hid {
             // d h = g·(1 - z)
-            let (z, go) = (d.plane(zs, 2 * d.hid, b, k), d.plane(gs, k_out, b, k));
-            o.iter_mut().zip(z).zip(go).for_each(|((o, &z), &go)| *o = go * (F::one() - sigmoid(z)));
+            gate_dh_plane(o, d.plane(zs, 2 * d.hid, b, k), d.plane(gs, k_out, b, k), true);
         } else if keep_x {
             o.copy_from_slice(d.plane(gs, k_out, b, k));
         }

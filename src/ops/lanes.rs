@@ -115,3 +115,67 @@ macro_rules! multiversion {
     };
 }
 pub(crate) use multiversion;
+
+/// e^x. f32: Cephes' `expf` (range reduction x = n·ln2 + r, degree-6 polynomial, about 1 ulp), written
+/// without branches or calls so that loops over it vectorise; x is clamped to [-87.33, 88.37], the
+/// range of normal results. f64: the platform's `exp`.
+#[inline(always)]
+pub fn exp<F: Float>(x: F) -> F {
+    match as_f32(x) {
+        Some(v) => from_f32(exp_f32(v)),
+        None => x.exp(),
+    }
+}
+
+/// σ(x) = 1 / (1 + e^-x), with [`exp`].
+#[inline(always)]
+pub fn sigmoid<F: Float>(x: F) -> F {
+    F::one() / (F::one() + exp(-x))
+}
+
+/// tanh(x). f32: Cephes' `tanhf` (odd polynomial for |x| < 0.625, else 1 - 2 / (e^{2|x|} + 1), with
+/// the sign of x; about 2 ulp), branch-free; f64: the platform's `tanh`.
+#[inline(always)]
+pub fn tanh<F: Float>(x: F) -> F {
+    match as_f32(x) {
+        Some(v) => from_f32(tanh_f32(v)),
+        None => x.tanh(),
+    }
+}
+
+#[inline(always)]
+fn as_f32<F: Float>(x: F) -> Option<f32> {
+    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>() {
+        x.to_f32()
+    } else {
+        None
+    }
+}
+
+#[inline(always)]
+fn from_f32<F: Float>(v: f32) -> F {
+    F::from(v).expect("F is f32")
+}
+
+#[inline(always)]
+fn exp_f32(x: f32) -> f32 {
+    let x = x.clamp(-87.336_54, 88.376_26);
+    // n = round(x / ln 2); r = x - n·ln 2 in two parts (C1 + C2 = ln 2) for accuracy
+    let n = (x * std::f32::consts::LOG2_E + 0.5).floor();
+    let r = x - n * 0.693_359_4 - n * -2.121_944_4e-4;
+    let r2 = r * r;
+    let p = (((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r + 1.666_666_5e-1) * r + 5.000_000_1e-1) * r2 + r + 1.0;
+    // 2^n from its exponent bits: (n + 127) << 23, n in [-126, 127]
+    p * f32::from_bits(((n as i32 + 127) as u32) << 23)
+}
+
+#[inline(always)]
+fn tanh_f32(x: f32) -> f32 {
+    let a = x.abs();
+    let z = x * x;
+    // |x| < 0.625: x + x·z·P(z)
+    let small = x + x * z * ((((-5.704_988_7e-3 * z + 2.063_908_9e-2) * z - 5.373_971_6e-2) * z + 1.333_144_2e-1) * z - 3.333_328_2e-1);
+    // otherwise: sign(x)·(1 - 2 / (e^{2|x|} + 1))
+    let large = (1.0 - 2.0 / (exp_f32(2.0 * a) + 1.0)).copysign(x);
+    if a < 0.625 { small } else { large }
+}

@@ -8,6 +8,7 @@
 //! | sum to a broadcast shape | `elementwise::sum_to_shape` | broadcast | `g.sum_to_size(shape)` |
 //! | mean over axes | `elementwise::mean_fwd` | `elementwise::mean_bwd` | `x.mean(dim, keepdim)` |
 //! | cat / slice along an axis | `shape::cat_fwd`, `shape::slice_fwd` | `shape::slice_bwd` | `torch.cat`, `x[..., a:b]` |
+//! | iAFF attentional gate: σ(L + G) ⊙ x + (1 - σ(L + G)) ⊙ y, G broadcast over H, W | `gate::attention_gate_fwd` | `gate::attention_gate_bwd` (local, global, x, y) | sigmoid/mul/add (spec a.3) |
 //! | GRU reset gate: [σ(r̃) ⊙ h, x] | `gru::gru_reset_fwd` | `gru::gru_reset_bwd` (zr, hx) | `torch.cat([torch.sigmoid(r) * h, x], 1)` |
 //! | GRU update: (1 - σ(z̃)) ⊙ h + σ(z̃) ⊙ tanh(q̃) (optionally followed by x) | `gru::gru_update_fwd` | `gru::gru_update_bwd` (zr, q, hx) | sigmoid/tanh/mul/add (spec a.8) |
 //! | conv2d (any kernel, stride, per-axis zero padding, bias) | `conv::conv2d_fwd` | `conv::conv2d_bwd` (x, w, b) | `F.conv2d` |
@@ -30,6 +31,7 @@ pub mod act;
 pub mod conv;
 pub mod corr;
 pub mod elementwise;
+pub mod gate;
 pub mod gru;
 pub mod lanes;
 pub mod loss;

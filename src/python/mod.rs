@@ -8,6 +8,7 @@ mod convert;
 mod corr;
 mod elementwise;
 mod errors;
+mod gate;
 mod gru;
 mod loss;
 mod norm;
@@ -59,6 +60,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     conv::register(m)?;
     corr::register(m)?;
     elementwise::register(m)?;
+    gate::register(m)?;
     gru::register(m)?;
     loss::register(m)?;
     norm::register(m)?;
