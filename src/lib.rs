@@ -6,6 +6,7 @@
 //! return [`Result`] on bad input (never panic on user data) and parallelise with rayon over disjoint
 //! output planes, so results are deterministic.
 
+pub mod alloc;
 pub mod error;
 pub mod float;
 pub mod gemm;
@@ -17,4 +18,7 @@ pub mod tensor;
 mod python;
 
 pub use error::{Error, Result};
+
+#[global_allocator]
+static GLOBAL: alloc::HugePageAlloc = alloc::HugePageAlloc;
 pub use float::Float;

@@ -30,9 +30,8 @@ pub fn check_same_shape(op: &'static str, a: (&'static str, &[usize]), b: (&'sta
 /// A zero-filled standard-layout array, like `Array::zeros`, for kernel outputs; a shape whose size
 /// overflows or cannot be allocated is an error naming `op` instead of a panic or an abort.
 ///
-/// Large buffers are asked to be backed by transparent huge pages (Linux `MADV_HUGEPAGE`) and are
-/// zeroed in parallel: a fresh multi-MB allocation is a new mapping, and touching it in 4 KiB pages
-/// costs one page fault per page (tens of ms for the 63 MB warp of a 1280-channel stack).
+/// Large buffers are zeroed in parallel (and backed by huge pages, as every large block of
+/// [`crate::alloc::HugePageAlloc`]).
 pub fn zeros<F: crate::Float, D: Dimension>(op: &'static str, shape: impl ndarray::IntoDimension<Dim = D>) -> Result<ndarray::Array<F, D>> {
     use rayon::prelude::*;
     let dim = shape.into_dimension();
@@ -40,7 +39,6 @@ pub fn zeros<F: crate::Float, D: Dimension>(op: &'static str, shape: impl ndarra
     let len = dim.size_checked().filter(|&n| n.checked_mul(std::mem::size_of::<F>()).is_some_and(|b| b <= isize::MAX as usize)).ok_or_else(too_big)?;
     let mut v = Vec::<F>::new();
     v.try_reserve_exact(len).map_err(|_| too_big())?;
-    advise_huge_pages(v.as_mut_ptr().cast(), len * std::mem::size_of::<F>());
     v.spare_capacity_mut()[..len].par_chunks_mut(1 << 16).for_each(|c| {
         c.iter_mut().for_each(|x| {
             x.write(F::zero());
@@ -51,26 +49,22 @@ pub fn zeros<F: crate::Float, D: Dimension>(op: &'static str, shape: impl ndarra
     Ok(ndarray::Array::from_shape_vec(dim, v).expect("length equals the shape's size"))
 }
 
-/// Advises the kernel to back `[ptr, ptr + bytes)` with huge pages (only the whole pages inside; a no-op
-/// for small buffers and off Linux; failure is harmless).
-fn advise_huge_pages(ptr: *mut u8, bytes: usize) {
-    #[cfg(target_os = "linux")]
-    {
-        const PAGE: usize = 4096;
-        const MADV_HUGEPAGE: std::ffi::c_int = 14;
-        extern "C" {
-            fn madvise(addr: *mut std::ffi::c_void, len: usize, advice: std::ffi::c_int) -> std::ffi::c_int;
-        }
-        if bytes < (4 << 20) {
-            return;
-        }
-        let start = (ptr as usize).next_multiple_of(PAGE);
-        let end = (ptr as usize + bytes) & !(PAGE - 1);
-        if end > start {
-            // SAFETY: the range lies inside a live allocation; madvise only changes paging policy.
-            unsafe { madvise(start as *mut std::ffi::c_void, end - start, MADV_HUGEPAGE) };
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = (ptr, bytes);
+/// Elements per task of [`par_filled`].
+const FILL_CHUNK: usize = 1 << 16;
+
+/// A standard-layout array of `shape` whose flat elements are written in parallel: `fill(start, chunk)`
+/// must write every element of `chunk`, which holds the flat indices start..start + chunk.len().
+/// Errors as [`zeros`] for shapes too large to allocate.
+pub fn par_filled<F: crate::Float>(op: &'static str, shape: &[usize],
+                                   fill: impl Fn(usize, &mut [std::mem::MaybeUninit<F>]) + Sync) -> Result<ndarray::ArrayD<F>> {
+    use rayon::prelude::*;
+    let too_big = || Error::shape(op, "the output is too large to allocate", &[("output", shape)]);
+    let len = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))
+        .filter(|&n| n.checked_mul(std::mem::size_of::<F>()).is_some_and(|b| b <= isize::MAX as usize)).ok_or_else(too_big)?;
+    let mut v = Vec::<F>::new();
+    v.try_reserve_exact(len).map_err(|_| too_big())?;
+    v.spare_capacity_mut()[..len].par_chunks_mut(FILL_CHUNK).enumerate().for_each(|(k, c)| fill(k * FILL_CHUNK, c));
+    // SAFETY: `fill` wrote every element of every chunk, which together cover the first `len` elements.
+    unsafe { v.set_len(len) };
+    Ok(ndarray::ArrayD::from_shape_vec(ndarray::IxDyn(shape), v).expect("length equals the shape's size"))
 }

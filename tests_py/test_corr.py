@@ -84,3 +84,53 @@ def test_correlations_at_model_channel_counts_float32():
     fl, st, wp = rand((1, 256, 6, 8)), rand((1, 1280, 6, 8), seed=1), rand((1, 256, 6, 8), seed=2)
     check_op([fl, st], ip_torch, lambda a, b: M.ip_correlation(a, b))
     check_op([fl, wp], rls_torch, lambda a, b: M.rls_correlation(a, b))
+
+
+# ---- fused warp + correlation (vertical flow zero), against grid_sample of the reference model ----
+
+from reference import build_ip_stack, warp  # noqa: E402
+
+
+def _flow_x(n, h, w, seed=3):
+    # f_x in [-(w+1), 2]: samples beyond both borders too (border clamping)
+    return np.random.default_rng(seed).uniform(-(w + 1), 2, size=(n, h, w))
+
+
+def _channels_last(t):
+    return t.permute(0, 3, 1, 2)  # torch side: (N, h, w, C) input -> (N, C, h, w)
+
+
+def _torch_flow(fx, like):
+    fx = torch.tensor(fx, dtype=like.dtype)
+    return torch.stack([fx, torch.zeros_like(fx)], 1)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("n,c,g,h,w", [(2, 8, 2, 5, 7), (1, 16, 2, 1, 9), (1, 6, 3, 4, 1), (1, 256, 2, 6, 8)])
+def test_ip_warp_correlation_matches_grid_sample_of_the_seed_stack(n, c, g, h, w, dtype):
+    fx = _flow_x(n, h, w)
+    check_op([rand((n, h, w, c)), rand((n, h, w, c), seed=2)],
+             lambda a, b: ip_torch(_channels_last(a), warp(build_ip_stack(_channels_last(b)), _torch_flow(fx, a)), g),
+             lambda a, b: M.ip_warp_correlation(a, b, fx, groups=g), dtype=dtype)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("n,c,h,w,rx,ry", [(2, 8, 5, 9, 3, 1), (1, 16, 3, 2, 3, 1), (1, 5, 1, 1, 3, 1), (1, 8, 7, 6, 2, 0),
+                                           (1, 3, 4, 5, 0, 2), (1, 256, 6, 8, 3, 1)])
+def test_rls_warp_correlation_matches_grid_sample_then_rls(n, c, h, w, rx, ry, dtype):
+    fx = _flow_x(n, h, w)
+    check_op([rand((n, h, w, c)), rand((n, h, w, c), seed=2)],
+             lambda a, b: rls_torch(_channels_last(a), warp(_channels_last(b), _torch_flow(fx, a)), rx, ry),
+             lambda a, b: M.rls_warp_correlation(a, b, fx, rx=rx, ry=ry), dtype=dtype)
+
+
+def test_warp_correlation_errors_name_op_and_shapes():
+    fl = mipnet.tensor(rand((1, 3, 4, 8)))
+    with pytest.raises(RuntimeError, match=r"ip_warp_correlation.*\[1, 3, 4, 8\].*\[1, 3, 5, 8\]"):
+        M.ip_warp_correlation(fl, mipnet.tensor(rand((1, 3, 5, 8))), np.zeros((1, 3, 4)))
+    with pytest.raises(RuntimeError, match=r"rls_warp_correlation.*flow_x=\[1, 4, 3\]"):
+        M.rls_warp_correlation(fl, fl, np.zeros((1, 4, 3)))
+    with pytest.raises(mipnet.errors.InvalidValueError, match="ip_warp_correlation.*NaN"):
+        M.ip_warp_correlation(fl, fl, np.full((1, 3, 4), np.nan))
+    with pytest.raises(mipnet.errors.ArgumentError, match="rls_warp_correlation.*rx"):
+        M.rls_warp_correlation(fl, fl, np.zeros((1, 3, 4)), rx=-1)

@@ -10,11 +10,13 @@ deals with broadcasting.
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any, Callable
 
 import numpy as np
 
 from . import _core
+from . import profiler as _profiler
 from .errors import DTypeError
 
 _state = threading.local()
@@ -65,6 +67,7 @@ class Context:
     def __init__(self, needs_input_grad: tuple[bool, ...]):
         self.needs_input_grad = needs_input_grad
         self.saved_tensors: tuple = ()
+        self.scope = ""
 
     def save_for_backward(self, *arrays: Any) -> None:
         self.saved_tensors = arrays
@@ -90,6 +93,9 @@ class Function:
     """
 
     name = "op"
+    #: True when ``backward`` returns freshly allocated gradients that nothing else references (as the
+    #: Rust kernels do), so the tape may add later contributions into them in place.
+    fresh_grads = False
 
     @staticmethod
     def forward(ctx: Context, *args: Any, **kwargs: Any) -> np.ndarray:
@@ -111,13 +117,68 @@ class Function:
         needs = tuple(isinstance(a, Tensor) and a.requires_grad for a in args)
         track = is_grad_enabled() and any(needs)
         ctx = Context(needs)
-        out = cls.forward(ctx, *(a.data if isinstance(a, Tensor) else a for a in args), **kwargs)
+        arrays = [a.data if isinstance(a, Tensor) else a for a in args]
+        prof = _profiler.ACTIVE
+        if prof is None:
+            out = cls.forward(ctx, *arrays, **kwargs)
+        else:
+            ctx.scope = prof.scope()
+            t0, c0 = time.perf_counter(), time.process_time()
+            out = cls.forward(ctx, *arrays, **kwargs)
+            prof.add("forward", ctx.scope, cls.name, time.perf_counter() - t0, time.process_time() - c0)
         result = Tensor._wrap(out, requires_grad=track)
         if track:
             edges = tuple((a if a._node is None else a._node) if isinstance(a, Tensor) and a.requires_grad else None
                           for a in args)
             result._node = _Node(cls, ctx, edges, out.shape, out.dtype)
         return result
+
+
+class _Checkpoint:
+    """The tape entry of :func:`checkpoint`: its backward re-runs the function with recording on and
+    back-propagates through that fresh graph (the profiler shows the re-run's ops in scope "recompute")."""
+
+    name = "checkpoint"
+    fresh_grads = True
+
+    @staticmethod
+    def backward(ctx: Context, g: np.ndarray) -> tuple:
+        from .tensor import Tensor
+
+        xs = [Tensor._wrap(a, requires_grad=need) for a, need in zip(ctx.saved_tensors, ctx.needs_input_grad)]
+        state = [(m, {k: np.array(v, copy=True) for k, v in m._buffers.items()}) for m in ctx.modules]
+        with enable_grad(), _profiler.scope("recompute"):
+            y = ctx.fn(*xs)
+        for m, buffers in state:  # the recomputation must not count twice in running statistics
+            m._buffers.update(buffers)
+        backward(y, g)
+        return tuple(None if x.grad is None else x.grad.data for x in xs)
+
+
+def checkpoint(fn: Callable, *inputs: Any, modules: Any = ()) -> Any:
+    """``fn(*inputs)`` without keeping its intermediate activations (``torch.utils.checkpoint``): the
+    forward runs unrecorded, only ``inputs`` are saved, and the backward runs ``fn`` again to
+    differentiate it. Worth it where ``fn`` is cheap to recompute and its activations are large.
+
+    ``fn`` takes and returns Tensors; parameters used inside receive gradients as usual. ``modules``:
+    the modules ``fn`` runs, whose buffers (BatchNorm running statistics) are restored after the
+    recomputation, so they are updated once, by the forward.
+    """
+    from .tensor import Tensor
+
+    tensors = [a for a in inputs if isinstance(a, Tensor)]
+    if not is_grad_enabled() or len(tensors) != len(inputs):
+        return fn(*inputs)
+    mods = [m for top in modules for m in top.modules()]
+    with no_grad():
+        out = fn(*(Tensor._wrap(t.data) for t in tensors))
+    ctx = Context(tuple(t.requires_grad for t in tensors))
+    ctx.saved_tensors = tuple(t.data for t in tensors)
+    ctx.fn, ctx.modules = fn, mods
+    result = Tensor._wrap(out.data, requires_grad=True)
+    edges = tuple((t if t._node is None else t._node) if t.requires_grad else None for t in tensors)
+    result._node = _Node(_Checkpoint, ctx, edges, out.data.shape, out.data.dtype)
+    return result
 
 
 def unbroadcast(grad: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -155,23 +216,61 @@ def backward(root, grad: np.ndarray) -> None:
     if root._node.fn is None:
         raise RuntimeError("backward: trying to backward through the graph a second time")
     grads = {id(root._node): grad}
+    owned: set[int] = set()  # keys whose gradient array the tape alone references (summed into in place)
     for item in reversed(_topological_order(root._node)):
         g = grads.pop(id(item), None)
+        owned.discard(id(item))
         if g is None:
             continue
         if isinstance(item, Tensor):
             _accumulate(item, g)
             continue
-        in_grads = item.fn.backward(item.ctx, g)
+        prof = _profiler.ACTIVE
+        scope = item.ctx.scope
+        if prof is None or item.fn is _Checkpoint:  # a checkpoint's ops are timed one by one
+            in_grads = item.fn.backward(item.ctx, g)
+        else:
+            t0, c0 = time.perf_counter(), time.process_time()
+            in_grads = item.fn.backward(item.ctx, g)
+            prof.add("backward", scope, item.fn.name, time.perf_counter() - t0, time.process_time() - c0)
         if not isinstance(in_grads, tuple):
             in_grads = (in_grads,)
+        # the node's saved arrays and its output gradient go before its input gradients are summed
+        fresh = item.fn.fresh_grads
+        del g
+        item.fn, item.ctx = None, None
+        if prof is not None:
+            t0, c0 = time.perf_counter(), time.process_time()
         for edge, ig in zip(item.inputs, in_grads):
             if edge is None or ig is None:
                 continue
-            ig = unbroadcast(np.asarray(ig, dtype=edge.dtype), edge.shape)
-            prev = grads.get(id(edge))
-            grads[id(edge)] = ig if prev is None else prev + ig
-        item.fn, item.ctx, item.inputs = None, None, ()
+            _add_grad(grads, owned, edge, ig, fresh)
+        if prof is not None:
+            prof.add("backward", scope, "grad accumulate", time.perf_counter() - t0, time.process_time() - c0)
+        item.inputs = ()
+        del in_grads
+
+
+def _add_grad(grads: dict, owned: set, edge, ig: Any, fresh: bool) -> None:
+    """grads[edge] += ig, in place when one of the two arrays belongs to the tape alone: a sum the
+    tape made, or a fresh gradient of a ``fresh_grads`` op (each array of one backward is distinct)."""
+    key = id(edge)
+    full = unbroadcast(np.asarray(ig, dtype=edge.dtype), edge.shape)
+    mine = (fresh and full is ig) or full is not ig  # a reduced gradient is a new array too
+    prev = grads.get(key)
+    if prev is None:
+        grads[key] = full
+        if mine:
+            owned.add(key)
+    elif key in owned:
+        np.add(prev, full, out=prev)
+    elif mine:
+        np.add(full, prev, out=full)
+        grads[key] = full
+        owned.add(key)
+    else:
+        grads[key] = prev + full
+        owned.add(key)
 
 
 def _accumulate(leaf, g: np.ndarray) -> None:

@@ -3,7 +3,8 @@
 Usage::
 
     python -m mipnet.bench ops [--threads 2] [--repeat 15] [--warmup 1] [--filter conv] [--peak GFLOPS]
-    python -m mipnet.bench model [--threads 2] [--sizes 384x512 1088x1920] [--train-size 384x512]
+    python -m mipnet.bench model [--threads 2] [--sizes 384x512 768x1024 1088x1920]
+                                 [--train 384x512x2:6,6 128x256x4:3,3] [--engines ...] [--profile]
 
 ``ops`` times each kernel row (forward, or forward + backward) with mipnet and with torch and prints
 a table: op, shape, mipnet ms and torch ms (medians of runs in alternating blocks, each after a
@@ -31,6 +32,7 @@ import numpy as np
 import mipnet
 import mipnet.ops as M
 from mipnet import _core
+from mipnet.bench_model import ENGINES
 
 
 #: Pause after each block of runs of one library (longer than OpenMP's spin-wait).
@@ -261,18 +263,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     ops.add_argument("--filter", default="", help="only rows whose op or shape contains this text")
     ops.add_argument("--peak", type=float, default=None,
                      help="GFLOP/s taken as 100%% (default: the FMA peak measured on --threads threads)")
-    model = sub.add_parser("model", help="whole-network timings and peak memory against the torch reference")
-    model.add_argument("--threads", type=int, default=2, help="threads for mipnet and torch (default 2)")
-    model.add_argument("--sizes", nargs="+", default=["384x512", "1088x1920"], help="eval sizes HxW")
-    model.add_argument("--train-size", default="384x512", help="training-step size HxW")
-    model.add_argument("--train-batch", type=int, default=2)
+    model = sub.add_parser("model", help="whole-network timings and peak memory of every engine (mipnet, torch, "
+                                          "OpenVINO, onnxruntime)")
+    model.add_argument("--threads", type=int, default=2, help="threads for every engine (default 2)")
+    model.add_argument("--sizes", nargs="*", default=["384x512", "768x1024", "1088x1920"], help="eval sizes HxW")
+    model.add_argument("--train", nargs="*", default=["384x512x2:6,6", "128x256x4:3,3"],
+                       help="train steps HxWxBATCH:N16,N4 (default 384x512x2:6,6 128x256x4:3,3)")
+    model.add_argument("--engines", nargs="+", default=list(ENGINES), choices=list(ENGINES))
+    model.add_argument("--warmup", type=int, default=1, help="untimed runs before the timed one (default 1)")
+    model.add_argument("--profile", action="store_true", help="also print mipnet's profile of eval and train")
     args = parser.parse_args(argv)
     if args.command == "model":
         from .bench_model import run as run_model
 
         hw = lambda s: tuple(int(v) for v in s.lower().split("x"))  # noqa: E731
-        print(run_model(args.threads, [hw(s) for s in args.sizes], hw(args.train_size), args.train_batch))
-        return 0
+        return run_model(args.threads, [hw(s) for s in args.sizes], args.train, args.engines, args.profile, args.warmup)
     try:
         import torch
     except ImportError:

@@ -1,19 +1,39 @@
-"""Whole-model benchmark: mipnet vs the PyTorch reference (tests_py/reference), same weights, same
-inputs, same thread count. Each measurement runs in a fresh subprocess, so its peak resident memory
-(ru_maxrss) belongs to that run alone.
+"""Whole-model benchmark: every engine in one run, same weights, inputs, initial field and threads.
 
-    python -m mipnet.bench model [--threads 2] [--sizes 384x512 1088x1920] [--train-size 384x512]
+    python -m mipnet.bench model [--threads 2] [--sizes 384x512 768x1024 1088x1920]
+                                 [--train 384x512x2:6,6 128x256x4:3,3] [--engines ...] [--profile]
+
+Engines: ``mipnet``; ``torch`` (eager, the reference model of tests_py/reference); ``openvino`` (fp32
+hint) and ``onnxruntime`` (CPU), both running the torch reference exported by ``torch.onnx`` (opset 17).
+OpenVINO and onnxruntime are bench extras (``pip install ".[bench]"``); an engine that is not
+installed is listed as such. Eval rows time the forward pass (6+6 iterations) after one untimed run;
+train rows time one step (forward, sequence loss, backward, AdamW) for mipnet and torch. Each
+measurement runs in a fresh subprocess, so its peak resident memory (ru_maxrss) is that run's alone.
+Before any time is printed, the disparities of every engine are checked against mipnet's (at most
+1e-3 px apart) and the training losses of mipnet and torch against each other (1e-2 relative).
+``--profile`` adds mipnet's profiler table (``mipnet.profiler``) for the first eval size and the first
+train case.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import platform
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
+from typing import Sequence
 
 REFERENCE_HINT = "run from the repository root (the torch reference lives in tests_py/reference)"
+ENGINES = ("mipnet", "torch", "openvino", "onnxruntime")
+#: Largest disparity difference between engines before times are printed (px).
+AGREEMENT_PX = 1e-3
+#: Largest relative difference of the training losses of mipnet and torch. Looser than eval: in
+#: training mode the iAFF BatchNorms normalise 2N samples of globally pooled features, which for
+#: small batches of similar images amplifies float32 rounding.
+AGREEMENT_LOSS = 1e-2
 
 
 def reference_dir() -> Path | None:
@@ -24,77 +44,274 @@ def reference_dir() -> Path | None:
     return None
 
 
-# Runs in the child process: builds both models from one seeded torch init, times one call.
+def fma_peak_gflops(threads: int) -> float | None:
+    """The measured FMA peak of this machine at ``threads`` threads, where mipnet's core measures it
+    (``_core.fma_peak_gflops``), else None. The one place the header asks for it."""
+    from . import _core
+
+    fn = getattr(_core, "fma_peak_gflops", None)
+    return float(fn(threads)) if fn is not None else None
+
+
+def machine_header(threads: int) -> str:
+    """CPU model, ISA flags, mipnet's kernel ISA and the measured FMA peak."""
+    model, flags = platform.processor() or "unknown CPU", set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name":
+                model = value.strip()
+            elif key.strip() == "flags":
+                flags = set(value.split())
+                break
+    except OSError:
+        pass
+    isa = [f for f in ("avx512f", "avx512_bf16", "amx_tile", "avx2", "fma") if f in flags]
+    from . import _core
+
+    kernel_isa = getattr(_core, "simd_isa", lambda: "?")()
+    peak = fma_peak_gflops(threads)
+    peak_s = f"{peak:.0f} GFLOP/s" if peak is not None else "not measured (needs _core.fma_peak_gflops)"
+    return (f"CPU: {model}, {os.cpu_count()} logical cores; ISA: {' '.join(isa) or 'baseline x86-64'}; "
+            f"mipnet kernels: {kernel_isa}; FMA peak at {threads} threads: {peak_s}")
+
+
+# Runs in the child process: builds the engine from one seeded torch init, times `runs` calls after
+# `warmup` untimed ones, writes the output (eval disparity or train loss) to `out`.
 _CHILD = r"""
 import json, resource, sys, time
 import numpy as np
-engine, mode, h, w, n, threads, ref_dir = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6]), sys.argv[7]
-sys.path.insert(0, ref_dir)
+a = json.loads(sys.argv[1])
+sys.path.insert(0, a["ref_dir"])
 import torch
-torch.set_num_threads(threads)
+torch.set_num_threads(a["threads"])
 from reference import MIPNetTorch, sequence_loss_torch
 torch.manual_seed(0)
 ref = MIPNetTorch()
+n, h, w, iters = a["n"], a["h"], a["w"], tuple(a["iters"])
 rng = np.random.default_rng(0)
 left = rng.uniform(0, 255, (n, 3, h, w)).astype(np.float32)
 right = np.roll(left, -4, axis=3)
-d0 = rng.uniform(0.5, 3.0, (n, 1, h // 16, w // 16))
+d0 = rng.uniform(0.5, 3.0, (n, 1, h // 16, w // 16)).astype(np.float32)
 gt = np.full((n, 1, h, w), 4.0, np.float32)
+engine, mode = a["engine"], a["mode"]
+profile = None
 if engine == "mipnet":
     import mipnet
-    mipnet.set_num_threads(threads)
+    mipnet.set_num_threads(a["threads"])
     model = mipnet.MIPNet()
     model.load_state_dict({k: v.numpy() for k, v in ref.state_dict().items()})
     del ref
-    def run():
-        if mode == "eval":
-            model.eval()(left, right, disp_init=d0)
-        else:
-            model.train()
-            loss = mipnet.losses.sequence_loss(model(left, right, disp_init=d0), gt, gt > 0)
+    if mode == "eval":
+        model.eval()
+        run = lambda: model(left, right, iters=iters, disp_init=d0)
+    else:
+        model.train()
+        opt = mipnet.optim.AdamW(model.parameters(), lr=1e-4, weight_decay=1e-5)
+        def run():
+            opt.zero_grad()
+            loss = mipnet.losses.sequence_loss(model(left, right, iters=iters, disp_init=d0), gt, gt > 0)
             loss.backward()
-else:
-    model = ref
-    def run():
-        if mode == "eval":
+            with mipnet.profiler.record("AdamW.step"):
+                opt.step()
+            return np.asarray(loss.item())
+elif engine == "torch":
+    if mode == "eval":
+        ref.eval()
+        def run():
             with torch.no_grad():
-                model.eval()(torch.from_numpy(left), torch.from_numpy(right), disp_init=torch.from_numpy(d0).float())
-        else:
-            model.train()
-            preds = model(torch.from_numpy(left), torch.from_numpy(right), disp_init=torch.from_numpy(d0).float())
-            sequence_loss_torch(preds, torch.from_numpy(gt), torch.from_numpy(gt > 0)).backward()
-rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-t0 = time.perf_counter(); run(); seconds = time.perf_counter() - t0
+                return ref(torch.from_numpy(left), torch.from_numpy(right), iters=iters, disp_init=torch.from_numpy(d0))[:, 0].numpy()
+    else:
+        ref.train()
+        opt = torch.optim.AdamW(ref.parameters(), lr=1e-4, weight_decay=1e-5)
+        def run():
+            opt.zero_grad()
+            preds = ref(torch.from_numpy(left), torch.from_numpy(right), iters=iters, disp_init=torch.from_numpy(d0))
+            loss = sequence_loss_torch(preds, torch.from_numpy(gt), torch.from_numpy(gt > 0))
+            loss.backward()
+            opt.step()
+            return np.asarray(loss.item())
+else:
+    del ref
+    feeds = {"left": left, "right": right, "disp_init": d0}
+    if engine == "openvino":
+        import openvino as ov
+        compiled = ov.Core().compile_model(a["onnx"], "CPU", {"INFERENCE_NUM_THREADS": a["threads"],
+                                                               "INFERENCE_PRECISION_HINT": "f32"})
+        run = lambda: np.asarray(compiled(feeds)[0])[:, 0]
+    else:
+        import onnxruntime as ort
+        so = ort.SessionOptions()
+        so.intra_op_num_threads, so.inter_op_num_threads = a["threads"], 1
+        sess = ort.InferenceSession(a["onnx"], so, providers=["CPUExecutionProvider"])
+        run = lambda: sess.run(None, feeds)[0][:, 0]
+for _ in range(a["warmup"]):
+    run()
+seconds = []
+if a["profile"]:
+    with mipnet.profiler.profile() as profile:
+        out = run()
+else:
+    for _ in range(a["runs"]):
+        t0 = time.perf_counter(); out = run(); seconds.append(time.perf_counter() - t0)
+np.save(a["out"], np.asarray(out))
 print(json.dumps({"seconds": seconds, "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-                  "base_mib": rss0 / 1024}))
+                  "table": profile.table() + "\n\n" + profile.scope_table() if profile is not None else None}))
+"""
+
+# Exports the torch reference's eval forward (fixed size, iterations unrolled) to ONNX, opset 17.
+_EXPORT = r"""
+import json, sys
+import torch
+a = json.loads(sys.argv[1])
+sys.path.insert(0, a["ref_dir"])
+from reference import MIPNetTorch
+torch.manual_seed(0)
+ref = MIPNetTorch().eval()
+n, h, w, iters = a["n"], a["h"], a["w"], tuple(a["iters"])
+
+class Eval(torch.nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.ref = ref
+
+    def forward(self, left, right, disp_init):
+        return self.ref(left, right, iters=iters, disp_init=disp_init)
+
+args = (torch.zeros(n, 3, h, w), torch.zeros(n, 3, h, w), torch.ones(n, 1, h // 16, w // 16))
+with torch.no_grad():
+    torch.onnx.export(Eval(), args, a["onnx"], opset_version=17, input_names=["left", "right", "disp_init"],
+                      output_names=["disparity"], dynamo=False)
 """
 
 
-def measure(engine: str, mode: str, h: int, w: int, n: int, threads: int, ref_dir: Path) -> dict:
-    env = {**os.environ, "MIPNET_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads)}
-    out = subprocess.run([sys.executable, "-c", _CHILD, engine, mode, str(h), str(w), str(n), str(threads), str(ref_dir)],
-                         capture_output=True, text=True, env=env)
+def _child(script: str, args: dict, threads: int) -> dict:
+    env = {**os.environ, "MIPNET_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads), "MIPNET_PROFILE": ""}
+    out = subprocess.run([sys.executable, "-c", script, json.dumps(args)], capture_output=True, text=True, env=env)
     if out.returncode != 0:
-        return {"error": (out.stderr.strip().splitlines() or ["failed"])[-1]}
-    return json.loads(out.stdout.strip().splitlines()[-1])
+        lines = [ln for ln in out.stderr.strip().splitlines() if ln.strip()]
+        return {"error": lines[-1] if lines else f"exit status {out.returncode}"}
+    return json.loads(out.stdout.strip().splitlines()[-1]) if script is _CHILD else {}
 
 
-def run(threads: int, sizes: list[tuple[int, int]], train_size: tuple[int, int], train_batch: int) -> str:
+def _installed(engine: str) -> bool:
+    import importlib.util
+
+    module = {"mipnet": "mipnet", "torch": "torch", "openvino": "openvino", "onnxruntime": "onnxruntime"}[engine]
+    return importlib.util.find_spec(module) is not None and (engine in ("mipnet", "torch") or importlib.util.find_spec("onnx") is not None)
+
+
+def _parse_train(spec: str) -> tuple[int, int, int, tuple[int, int]]:
+    """"384x512x2:6,6" -> (h, w, batch, iters)."""
+    size, _, it = spec.partition(":")
+    h, w, n = (int(v) for v in size.lower().split("x"))
+    return h, w, n, tuple(int(v) for v in (it or "6,6").split(","))  # type: ignore[return-value]
+
+
+def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], engines: Sequence[str] = ENGINES,
+        profile: bool = False, warmup: int = 1) -> int:
+    """Prints the header, the agreement check and the table; returns the exit status."""
     ref_dir = reference_dir()
     if ref_dir is None:
-        return f"mipnet.bench model: no torch reference found: {REFERENCE_HINT}"
-    cases = [("eval forward", "eval", h, w, 1) for h, w in sizes]
-    cases.append((f"train step (batch {train_batch})", "train", *train_size, train_batch))
-    header = f"{'case':<24} {'size':>10} {'mipnet s':>9} {'torch s':>9} {'ratio':>6} {'mipnet MiB':>11} {'torch MiB':>10}"
-    lines = [f"MIPNet, iters (6, 6), {threads} threads, same weights and inputs; peak = max RSS of the process", header,
-             "-" * len(header)]
-    for name, mode, h, w, n in cases:
-        ours = measure("mipnet", mode, h, w, n, threads, ref_dir)
-        theirs = measure("torch", mode, h, w, n, threads, ref_dir)
-        if "error" in ours or "error" in theirs:
-            lines.append(f"{name:<24} {h}x{w:<5} error: {ours.get('error') or theirs.get('error')}")
+        print(f"mipnet.bench model: no torch reference found: {REFERENCE_HINT}", file=sys.stderr)
+        return 1
+    missing = [e for e in engines if not _installed(e)]
+    engines = [e for e in engines if e not in missing]
+    print(machine_header(threads))
+    print(f"MIPNet 6+6 iterations (train rows: as given), {threads} threads everywhere, same weights, inputs and "
+          f"initial field; peak = max RSS of a fresh process; seconds of one call after {warmup} untimed")
+    if missing:
+        print(f"not installed (pip install \".[bench]\"): {', '.join(missing)}")
+    rows, status = [], 0
+    with tempfile.TemporaryDirectory(prefix="mipnet-bench-") as tmp:
+        base = {"ref_dir": str(ref_dir), "threads": threads, "warmup": warmup, "runs": 1, "profile": False}
+        for h, w in sizes:
+            case = {**base, "mode": "eval", "n": 1, "h": h, "w": w, "iters": [6, 6]}
+            onnx = os.path.join(tmp, f"mipnet_{h}x{w}.onnx")
+            if {"openvino", "onnxruntime"} & set(engines):
+                err = _child(_EXPORT, {**case, "onnx": onnx}, threads).get("error")
+                if err:
+                    print(f"torch.onnx export at {h}x{w} failed: {err}", file=sys.stderr)
+            results, outs = {}, {}
+            for e in engines:
+                outs[e] = os.path.join(tmp, f"{e}_{h}x{w}.npy")
+                results[e] = _child(_CHILD, {**case, "engine": e, "onnx": onnx, "out": outs[e]}, threads)
+                print(f"  done: eval {h}x{w} {e}", file=sys.stderr, flush=True)
+            status |= _agree(f"eval {h}x{w}", results, outs, "px")
+            rows.append((f"eval {h}x{w}", h * w / 1e6, results))
+        for spec in train:
+            h, w, n, iters = _parse_train(spec)
+            case = {**base, "mode": "train", "n": n, "h": h, "w": w, "iters": list(iters)}
+            results, outs = {}, {}
+            for e in [e for e in engines if e in ("mipnet", "torch")]:
+                outs[e] = os.path.join(tmp, f"{e}_train_{spec.replace(':', '_')}.npy")
+                results[e] = _child(_CHILD, {**case, "engine": e, "out": outs[e]}, threads)
+                print(f"  done: train {spec} {e}", file=sys.stderr, flush=True)
+            status |= _agree(f"train {spec}", results, outs, "rel")
+            rows.append((f"train {h}x{w} b{n} it{iters[0]},{iters[1]}", None, results))
+        if status:
+            print("engines disagree (see above): no times printed")
+            return status
+        print(_table(rows))
+        if profile:
+            _profiles(base, sizes, train, threads, tmp)
+    return 0
+
+
+def _agree(name: str, results: dict, outs: dict, kind: str) -> int:
+    """Checks every engine's output against mipnet's; prints the worst difference."""
+    import numpy as np
+
+    ok = {e: r for e, r in results.items() if "error" not in r}
+    for e, r in results.items():
+        if "error" in r:
+            print(f"{name}: {e} failed: {r['error']}")
+    if "mipnet" not in ok:
+        return 1
+    ours = np.load(outs["mipnet"]).astype(np.float64)
+    diffs = []
+    for e in ok:
+        if e == "mipnet":
             continue
-        lines.append(f"{name:<24} {f'{h}x{w}':>10} {ours['seconds']:>9.2f} {theirs['seconds']:>9.2f} "
-                     f"{ours['seconds'] / theirs['seconds']:>6.2f} {ours['peak_mib']:>11.0f} {theirs['peak_mib']:>10.0f}")
-        print(lines[-1], file=sys.stderr, flush=True)
+        theirs = np.load(outs[e]).astype(np.float64)
+        if theirs.shape != ours.shape:
+            print(f"{name}: {e} output shape {theirs.shape} vs mipnet {ours.shape}")
+            return 1
+        d = float(np.abs(theirs - ours).max())
+        d = d / max(float(np.abs(ours).max()), 1e-30) if kind == "rel" else d
+        diffs.append(f"{e} {d:.1e}")
+        if d > (AGREEMENT_PX if kind == "px" else AGREEMENT_LOSS):
+            print(f"{name}: {e} differs from mipnet by {d:.2e} {kind}")
+            return 1
+    print(f"{name}: agree with mipnet, max |difference| ({kind}): {', '.join(diffs) or 'no other engine'}")
+    return 0
+
+
+def _table(rows: list) -> str:
+    head = f"{'case':<26} {'engine':<12} {'seconds':>8} {'s/MP':>7} {'peak MiB':>9} {'engine/mipnet':>14}"
+    lines = [head, "-" * len(head)]
+    for name, mp, results in rows:
+        ours = results["mipnet"]["seconds"][0]
+        for e, r in results.items():
+            if "error" in r:
+                continue
+            s = r["seconds"][0]
+            per_mp = f"{s / mp:.2f}" if mp else ""
+            ratio = "" if e == "mipnet" else f"{s / ours:.2f}x"
+            lines.append(f"{name:<26} {e:<12} {s:>8.2f} {per_mp:>7} {r['peak_mib']:>9.0f} {ratio:>14}")
+    lines.append("engine/mipnet: the engine's seconds over mipnet's (above 1: mipnet is faster)")
     return "\n".join(lines)
+
+
+def _profiles(base: dict, sizes, train, threads: int, tmp: str) -> None:
+    cases = []
+    if sizes:
+        h, w = sizes[0]
+        cases.append((f"eval {h}x{w}", {**base, "mode": "eval", "n": 1, "h": h, "w": w, "iters": [6, 6]}))
+    if train:
+        h, w, n, iters = _parse_train(train[0])
+        cases.append((f"train step {train[0]}", {**base, "mode": "train", "n": n, "h": h, "w": w, "iters": list(iters)}))
+    for name, case in cases:
+        r = _child(_CHILD, {**case, "engine": "mipnet", "profile": True, "out": os.path.join(tmp, "profile.npy")}, threads)
+        print(f"\nmipnet profile, {name} (after {base['warmup']} untimed run):")
+        print(r.get("table") or f"failed: {r.get('error')}")

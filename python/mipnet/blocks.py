@@ -7,6 +7,7 @@ key table (f.2) and weights move unchanged between mipnet and PyTorch.
 from __future__ import annotations
 
 from . import ops
+from .autograd import checkpoint
 from .nn import BatchNorm2d, Conv2d, InstanceNorm2d, Module, Sequential, init
 from .tensor import Tensor
 
@@ -33,9 +34,13 @@ class MSCAM(Module):
         self.local = MSCAMBranch(c, r)
         self.add_module("global", MSCAMBranch(c, r))
 
+    def logits(self, z: Tensor) -> tuple[Tensor, Tensor]:
+        """(L(Z), G(GAP(Z))): the local (N, C, H, W) and global (N, C, 1, 1) terms before the sigmoid."""
+        return self.local(z), getattr(self, "global")(ops.mean(z, (2, 3), keepdim=True))
+
     def forward(self, z: Tensor) -> Tensor:
-        gap = ops.mean(z, (2, 3), keepdim=True)
-        return ops.sigmoid(self.local(z) + getattr(self, "global")(gap))
+        local, glob = self.logits(z)
+        return ops.sigmoid(local + glob)
 
 
 class IAFF(Module):
@@ -47,13 +52,10 @@ class IAFF(Module):
         self.att1 = MSCAM(c, r)
         self.att2 = MSCAM(c, r)
 
-    @staticmethod
-    def _gate(w: Tensor, x: Tensor, y: Tensor) -> Tensor:
-        return w * x + (1 - w) * y
-
     def forward(self, x: Tensor, y: Tensor) -> Tensor:
-        z1 = self._gate(self.att1(x + y), x, y)
-        return self._gate(self.att2(z1), x, y)
+        # each gate w x + (1 - w) y with w = M(.) is one fused kernel (sigmoid included)
+        z1 = ops.attention_gate(*self.att1.logits(x + y), x, y)
+        return ops.attention_gate(*self.att2.logits(z1), x, y)
 
 
 class ResBlock(Module):
@@ -74,7 +76,11 @@ class ResBlock(Module):
         y = ops.relu(self.norm1(self.conv1(x)))
         y = ops.relu(self.norm2(self.conv2(y)))
         xp = self.norm3(self.proj(x))
-        return ops.relu(self.fuse(y, xp) if self.use_aff else xp + y)
+        if not self.use_aff:
+            return ops.relu(xp + y)
+        # iAFF's activations (about 9 maps of cout channels) are recomputed in the backward instead of
+        # kept: its 1x1 convolutions and gates cost little next to the block's 3x3 convolutions
+        return ops.relu(checkpoint(self.fuse, y, xp, modules=(self.fuse,)))
 
 
 class Stem(Module):
@@ -109,7 +115,9 @@ class Encoder(Module):
 
 
 class IPMotionEncoder(Module):
-    """DIP SmallMotionEncoder: corr (10) and flow (2) -> 96 motion channels (94 + the flow)."""
+    """DIP SmallMotionEncoder: corr (10) and flow (2) -> 94 motion channels before their ReLU; DIP
+    applies it and appends the flow (96 channels), which :class:`UpdateBlock` does when it assembles
+    the GRU input."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -119,13 +127,13 @@ class IPMotionEncoder(Module):
         self.out = Conv2d(128, 94, 3, padding=1)
 
     def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
-        a = ops.relu(self.corr1(corr))
-        b = ops.relu(self.flow2(ops.relu(self.flow1(flow))))
-        return ops.cat([ops.relu(self.out(ops.cat([a, b], 1))), flow], 1)
+        ab = ops.cat_relu([self.corr1(corr), self.flow2(ops.relu(self.flow1(flow)))], [True, True], 1)
+        return self.out(ab)
 
 
 class RLSMotionEncoder(Module):
-    """DIP BasicMotionEncoder: corr (21) and flow (2) -> 128 motion channels (126 + the flow)."""
+    """DIP BasicMotionEncoder: corr (21) and flow (2) -> 126 motion channels before their ReLU (128
+    with the flow; :class:`UpdateBlock` applies the ReLU and appends the flow)."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -136,22 +144,25 @@ class RLSMotionEncoder(Module):
         self.out = Conv2d(192, 126, 3, padding=1)
 
     def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
-        a = ops.relu(self.corr2(ops.relu(self.corr1(corr))))
-        b = ops.relu(self.flow2(ops.relu(self.flow1(flow))))
-        return ops.cat([ops.relu(self.out(ops.cat([a, b], 1))), flow], 1)
+        a = self.corr2(ops.relu(self.corr1(corr)))
+        b = self.flow2(ops.relu(self.flow1(flow)))
+        return self.out(ops.cat_relu([a, b], [True, True], 1))
 
 
-def _gru_step(convz: Conv2d, convr: Conv2d, convq: Conv2d, h: Tensor, x: Tensor) -> Tensor:
-    """z = σ(Wz [h,x]); r = σ(Wr [h,x]); q = tanh(Wq [r h, x]); h' = (1 - z) h + z q."""
-    hx = ops.cat([h, x], 1)
-    z = ops.sigmoid(convz(hx))
-    r = ops.sigmoid(convr(hx))
-    q = ops.tanh(convq(ops.cat([r * h, x], 1)))
-    return (1 - z) * h + z * q
+def _gru_pass(convz: Conv2d, convr: Conv2d, convq: Conv2d, hx: Tensor, keep_x: bool) -> Tensor:
+    """One GRU pass on hx = [h, x]: z = σ(Wz hx); r = σ(Wr hx); q = tanh(Wq [r h, x]);
+    h' = (1 - z) h + z q. z and r come from one convolution (convz's and convr's weights stacked
+    along the output channels: one GEMM), the gate arithmetic from two fused kernels. Returns h', or
+    [h', x] (the next pass's input) with ``keep_x``."""
+    w = ops.cat([convz.weight, convr.weight], 0)
+    b = ops.cat([convz.bias, convr.bias], 0)
+    zr = ops.conv2d(hx, w, b, convz.stride, convz.padding)
+    q = convq(ops.gru_reset(zr, hx))
+    return ops.gru_update(zr, q, hx, keep_x)
 
 
 class ConvGRU(Module):
-    """3x3 convolutional GRU (paper §3.2.2)."""
+    """3x3 convolutional GRU (paper §3.2.2). ``forward(hx)`` takes hx = cat[h, x], returns h'."""
 
     def __init__(self, hidden: int, inp: int):
         super().__init__()
@@ -159,12 +170,13 @@ class ConvGRU(Module):
         self.convr = Conv2d(hidden + inp, hidden, 3, padding=1)
         self.convq = Conv2d(hidden + inp, hidden, 3, padding=1)
 
-    def forward(self, h: Tensor, x: Tensor) -> Tensor:
-        return _gru_step(self.convz, self.convr, self.convq, h, x)
+    def forward(self, hx: Tensor) -> Tensor:
+        return _gru_pass(self.convz, self.convr, self.convq, hx, keep_x=False)
 
 
 class SepConvGRU(Module):
-    """Separable GRU: a (1,5) horizontal pass, then a (5,1) vertical pass (DIP/RAFT)."""
+    """Separable GRU: a (1,5) horizontal pass, then a (5,1) vertical pass (DIP/RAFT), both on the same x.
+    ``forward(hx)`` takes hx = cat[h, x], returns h'."""
 
     def __init__(self, hidden: int, inp: int):
         super().__init__()
@@ -176,9 +188,9 @@ class SepConvGRU(Module):
         self.convr_v = Conv2d(c, hidden, (5, 1), padding=(2, 0))
         self.convq_v = Conv2d(c, hidden, (5, 1), padding=(2, 0))
 
-    def forward(self, h: Tensor, x: Tensor) -> Tensor:
-        h = _gru_step(self.convz_h, self.convr_h, self.convq_h, h, x)
-        return _gru_step(self.convz_v, self.convr_v, self.convq_v, h, x)
+    def forward(self, hx: Tensor) -> Tensor:
+        hx = _gru_pass(self.convz_h, self.convr_h, self.convq_h, hx, keep_x=True)
+        return _gru_pass(self.convz_v, self.convr_v, self.convq_v, hx, keep_x=False)
 
 
 class DispHead(Module):
@@ -215,10 +227,12 @@ class UpdateBlock(Module):
         self.disp_head = DispHead(hidden, head_mid)
         self.mask_head = MaskHead(hidden)
 
-    def forward(self, h: Tensor, context: Tensor, corr: Tensor, flow: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        x = ops.cat([context, self.motion(flow, corr)], 1)
-        h = self.gru(h, x)
-        return h, self.mask_head(h), self.disp_head(h)
+    def forward(self, h: Tensor, context: Tensor, corr: Tensor, flow: Tensor,
+                with_mask: bool = True) -> tuple[Tensor, Tensor | None, Tensor]:
+        """(h', mask or None when ``with_mask`` is off, delta)."""
+        # the GRU input [h, x] with x = [context, ReLU(motion), flow] (spec a.8), assembled in one copy
+        h = self.gru(ops.cat_relu([h, context, self.motion(flow, corr), flow], [False, False, True, False], 1))
+        return h, self.mask_head(h) if with_mask else None, self.disp_head(h)
 
 
 def ip_update_block(hidden: int = 128, context: int = 128) -> UpdateBlock:

@@ -14,7 +14,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import ops
-from .autograd import is_grad_enabled, no_grad
+from .autograd import checkpoint, is_grad_enabled, no_grad
+from .profiler import scope
 from .blocks import Encoder, UpdateBlock, ip_update_block, rls_update_block
 from .errors import ArgumentError, ShapeError
 from .memory import check_forward
@@ -127,50 +128,55 @@ class MIPNet(Module):
              seed: int | None, disp_init: Any) -> list[Tensor]:
         n = left.shape[0]
         # normalise to [-1, 1] as spec a.1 writes it, I' = 2 (I / 255) - 1; replicate-pad both images identically
-        images = ops.pad(Tensor(2 * (np.concatenate([left, right]) / 255) - 1), list(pad), mode="replicate")
-        fl4, fr4 = ops.split(self.encoder(images), [n, n], 0)
-        hidden4 = ops.tanh(fl4[:, :128])
-        context4 = ops.relu(fl4[:, 128:])
-        fl16, fr16, hidden16, context16 = (ops.avg_pool2d(t, 4, 4) for t in (fl4, fr4, hidden4, context4))
+        with scope("encoder"):
+            images = ops.pad(Tensor(2 * (np.concatenate([left, right]) / 255) - 1), list(pad), mode="replicate")
+            fl4, fr4 = ops.split(self.encoder(images), [n, n], 0)
+            hidden4 = ops.tanh(fl4[:, :128])
+            context4 = ops.relu(fl4[:, 128:])
+            fl16, fr16, hidden16, context16 = (ops.avg_pool2d(t, 4, 4) for t in (fl4, fr4, hidden4, context4))
         flow16 = self._initial_flow(n, fl16.shape[2], fl16.shape[3], seed, disp_init)
         collect = self.training
 
         preds: list[Tensor] = []
-        flow, mask = self._iterate(fl16, fr16, hidden16, context16, flow16, n16, preds if collect else None, 4)
+        with scope("level 1/16"):
+            flow, mask = self._iterate(fl16, fr16, hidden16, context16, flow16, n16, preds if collect else None, 4)
         if n4 == 0:
             # eval: the hand-over field, convex x4 then bilinear x4 (spec g.3); training has its 1/16 predictions
             return preds if collect else [self._prediction(flow, mask, 4)]
         with no_grad():  # the hand-over field is detached (spec a.10)
             flow4 = ops.convex_upsample(flow.detach(), mask.detach(), rate=4)
-        self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
+        with scope("level 1/4"):
+            self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
         return preds
 
     def _iterate(self, fl: Tensor, fr: Tensor, hidden: Tensor, context: Tensor, flow: Tensor, iters: int,
                  preds: list[Tensor] | None, bilinear: int | None) -> tuple[Tensor, Tensor]:
         """``iters`` IPM iterations at one level. Appends a prediction after every sub-update when
         ``bilinear`` is set (4: 1/16 level, convex x4 then bilinear x4; 1: 1/4 level), else only the
-        final one (eval at the 1/4 level) or none (eval at 1/16). Returns the last flow and mask."""
-        stack = _seed_stack(fr) if self.config.use_ip else None
+        final one (eval at the 1/4 level) or none (eval at 1/16). Returns the last flow and mask;
+        the mask head runs only where its mask is used."""
+        operands = _CorrelationOperands(fl, fr, self.config)
         blocks = self._blocks()
+        every = preds is not None and bilinear is not None
+        # training: each prediction's mask head and upsampling are recomputed in the backward rather
+        # than kept (about 400 maps of the level per sub-update)
+        recompute = every and is_grad_enabled()
         mask = None
         for t in range(iters):
             for b, (name, block) in enumerate(blocks):
                 flow = flow.detach()
-                corr = self._correlation(name, fl, fr, stack, flow)
-                hidden, mask, delta = block(hidden, context, corr, flow)
-                flow = flow + (_vertical_constraint(delta) if self.config.vertical_constraint else delta)
+                corr = operands.correlation(name, flow)
                 last = t == iters - 1 and b == len(blocks) - 1
-                if preds is not None and (bilinear is not None or last):
+                hidden, mask, delta = block(hidden, context, corr, flow, with_mask=(every or last) and not recompute)
+                flow = flow + (_vertical_constraint(delta) if self.config.vertical_constraint else delta)
+                if recompute:
+                    preds.append(checkpoint(lambda h, f, m=block.mask_head: self._prediction(f, m(h), bilinear), hidden, flow))
+                    if last:
+                        with no_grad():  # the hand-over mask (detached, spec a.10)
+                            mask = block.mask_head(hidden)
+                elif preds is not None and (bilinear is not None or last):
                     preds.append(self._prediction(flow, mask, bilinear or 1))
         return flow, mask
-
-    def _correlation(self, name: str, fl: Tensor, fr: Tensor, stack: Tensor | None, flow: Tensor) -> Tensor:
-        grid = _sampling_grid(flow.numpy())
-        if name == "ip":
-            # C_IP = F_L · W(S(F_R, Δ), f): warp the stack of seed-shifted right features once (a.6)
-            return ops.ip_correlation(fl, _warp(stack, grid), groups=2)
-        # C_RLS = F_L · S(W(F_R, f), Δ): warp, then a (2rx+1)x(2ry+1) window of shifts (a.7)
-        return ops.rls_correlation(fl, _warp(fr, grid), rx=self.config.rx, ry=self.config.ry)
 
     @staticmethod
     def _prediction(flow: Tensor, mask: Tensor | None, bilinear: int) -> Tensor:
@@ -287,6 +293,37 @@ def _crop(pred: Tensor, pad: tuple[int, int, int, int], shape: tuple[int, ...]) 
     if pred.shape[2:] == shape[2:]:
         return pred
     return pred[:, :, top:top + shape[2], left:left + shape[3]]
+
+
+class _CorrelationOperands:
+    """What the IP and RLS correlations of one level read, built once per level (spec a.6, a.7).
+
+    With the vertical constraint the flow's f_y is exactly 0, so the warp is a horizontal interpolation
+    and the fused kernels take channels-last features, warping inside (no seed stack, no warped map).
+    Without it, the seed stack is built and warped with grid_sample, as the spec writes it."""
+
+    def __init__(self, fl: Tensor, fr: Tensor, cfg: MIPNetConfig):
+        self.cfg = cfg
+        self.fused = cfg.vertical_constraint
+        if self.fused:
+            # (N, C, h, w) -> (N, h, w, C)
+            self.fl, self.fr = ops.permute(fl, (0, 2, 3, 1)), ops.permute(fr, (0, 2, 3, 1))
+        else:
+            self.fl, self.fr = fl, fr
+            self.stack = _seed_stack(fr) if cfg.use_ip else None
+
+    def correlation(self, name: str, flow: Tensor) -> Tensor:
+        if self.fused:
+            fx = flow.numpy()[:, 0]
+            if name == "ip":
+                return ops.ip_warp_correlation(self.fl, self.fr, fx, groups=2)
+            return ops.rls_warp_correlation(self.fl, self.fr, fx, rx=self.cfg.rx, ry=self.cfg.ry)
+        grid = _sampling_grid(flow.numpy())
+        if name == "ip":
+            # C_IP = F_L · W(S(F_R, Δ), f): warp the stack of seed-shifted right features once (a.6)
+            return ops.ip_correlation(self.fl, _warp(self.stack, grid), groups=2)
+        # C_RLS = F_L · S(W(F_R, f), Δ): warp, then a (2rx+1)x(2ry+1) window of shifts (a.7)
+        return ops.rls_correlation(self.fl, _warp(self.fr, grid), rx=self.cfg.rx, ry=self.cfg.ry)
 
 
 def _seed_stack(fr: Tensor) -> Tensor:

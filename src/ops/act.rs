@@ -6,9 +6,14 @@
 //! | sigmoid | 1 / (1 + e^-x) | g * y * (1 - y) |
 //! | tanh | tanh(x) | g * (1 - y^2) |
 
+use super::lanes::{self, multiversion};
 use crate::tensor::check_same_shape;
 use crate::{Error, Float, Result};
-use ndarray::{ArrayD, ArrayViewD, Zip};
+use ndarray::{ArrayD, ArrayViewD};
+use rayon::prelude::*;
+
+/// Elements per parallel task.
+const CHUNK: usize = 1 << 14;
 
 /// Which activation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -36,19 +41,29 @@ impl Act {
             Act::Tanh => "tanh",
         }
     }
-    fn f<F: Float>(self, x: F) -> F {
-        match self {
-            Act::Relu => x.max(F::zero()),
-            Act::Sigmoid => F::one() / (F::one() + (-x).exp()),
-            Act::Tanh => x.tanh(),
+}
+
+multiversion! {
+    /// y = act(x) over a run (one loop per activation, so each vectorises; sigmoid and tanh from
+    /// `lanes`, the same functions the fused GRU kernels use).
+    fn act_run<F: Float>(act: Act, y: &mut [F], x: &[F]) {
+        let it = y.iter_mut().zip(x);
+        match act {
+            Act::Relu => it.for_each(|(y, &x)| *y = x.max(F::zero())),
+            Act::Sigmoid => it.for_each(|(y, &x)| *y = lanes::sigmoid(x)),
+            Act::Tanh => it.for_each(|(y, &x)| *y = lanes::tanh(x)),
         }
     }
-    /// dy/dx expressed through y.
-    fn df_from_y<F: Float>(self, y: F) -> F {
-        match self {
-            Act::Relu => if y > F::zero() { F::one() } else { F::zero() },
-            Act::Sigmoid => y * (F::one() - y),
-            Act::Tanh => F::one() - y * y,
+}
+
+multiversion! {
+    /// dx = g · act'(x) over a run, with act' expressed through y: [y > 0], y(1 - y), 1 - y².
+    fn act_grad_run<F: Float>(act: Act, dx: &mut [F], y: &[F], g: &[F]) {
+        let it = dx.iter_mut().zip(y).zip(g);
+        match act {
+            Act::Relu => it.for_each(|((d, &y), &g)| *d = if y > F::zero() { g } else { F::zero() }),
+            Act::Sigmoid => it.for_each(|((d, &y), &g)| *d = g * (y * (F::one() - y))),
+            Act::Tanh => it.for_each(|((d, &y), &g)| *d = g * (F::one() - y * y)),
         }
     }
 }
@@ -59,7 +74,8 @@ impl Act {
 pub fn unary_fwd<F: Float>(act: Act, x: ArrayViewD<F>) -> ArrayD<F> {
     let x = x.as_standard_layout();
     let mut y = ArrayD::<F>::zeros(x.raw_dim());
-    Zip::from(&mut y).and(&x).par_for_each(|y, &x| *y = act.f(x));
+    let (ys, xs) = (y.as_slice_mut().expect("fresh array"), x.as_slice().expect("standard layout"));
+    ys.par_chunks_mut(CHUNK).zip(xs.par_chunks(CHUNK)).for_each(|(yc, xc)| act_run(act, yc, xc));
     y
 }
 
@@ -71,6 +87,7 @@ pub fn unary_bwd<F: Float>(act: Act, y: ArrayViewD<F>, g: ArrayViewD<F>) -> Resu
     check_same_shape(act.name(), ("output", y.shape()), ("grad_output", g.shape()))?;
     let (y, g) = (y.as_standard_layout(), g.as_standard_layout());
     let mut dx = ArrayD::<F>::zeros(y.raw_dim());
-    Zip::from(&mut dx).and(&y).and(&g).par_for_each(|dx, &y, &g| *dx = g * act.df_from_y(y));
+    let (ds, ys, gs) = (dx.as_slice_mut().expect("fresh array"), y.as_slice().expect("standard layout"), g.as_slice().expect("standard layout"));
+    ds.par_chunks_mut(CHUNK).zip(ys.par_chunks(CHUNK)).zip(gs.par_chunks(CHUNK)).for_each(|((dc, yc), gc)| act_grad_run(act, dc, yc, gc));
     Ok(dx)
 }

@@ -10,6 +10,7 @@
 
 use crate::{Error, Float, Result};
 use ndarray::{ArrayD, ArrayViewD, Axis, IxDyn, Zip};
+use rayon::prelude::*;
 
 /// Which binary op.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -140,17 +141,47 @@ fn check_axes(op: &'static str, shape: &[usize], axes: &[usize]) -> Result<()> {
 pub fn mean_fwd<F: Float>(x: ArrayViewD<F>, axes: &[usize], keepdim: bool) -> Result<ArrayD<F>> {
     check_axes("mean", x.shape(), axes)?;
     let count: usize = axes.iter().map(|&a| x.shape()[a]).product();
-    let mut out = x.to_owned();
-    for &a in axes {
-        out = out.sum_axis(Axis(a)).insert_axis(Axis(a));
-    }
-    out.mapv_inplace(|v| v / F::from_usize(count).unwrap());
-    if !keepdim {
-        let kept: Vec<usize> = (0..x.ndim()).filter(|a| !axes.contains(a)).map(|a| x.shape()[a]).collect();
-        out = out.into_shape_with_order(IxDyn(&kept)).expect("same element count");
+    let kept: Vec<usize> = (0..x.ndim()).filter(|a| !axes.contains(a)).map(|a| x.shape()[a]).collect();
+    let mut out = if trailing(x.ndim(), axes) {
+        // the reduced axes are the last ones: one contiguous run of `count` values per output element
+        let x = x.as_standard_layout();
+        let xs = x.as_slice().expect("standard layout");
+        let inv = F::one() / F::from_usize(count).unwrap();
+        let sums: Vec<F> = xs.par_chunks(count.max(1)).map(|run| sum_fixed(run) * inv).collect();
+        ArrayD::from_shape_vec(IxDyn(&kept), sums).expect("one value per kept index")
+    } else {
+        let mut out = x.to_owned();
+        for &a in axes {
+            out = out.sum_axis(Axis(a)).insert_axis(Axis(a));
+        }
+        out.mapv_inplace(|v| v / F::from_usize(count).unwrap());
+        out.into_shape_with_order(IxDyn(&kept)).expect("same element count")
+    };
+    if keepdim {
+        let shape: Vec<usize> = (0..x.ndim()).map(|a| if axes.contains(&a) { 1 } else { x.shape()[a] }).collect();
+        out = out.into_shape_with_order(IxDyn(&shape)).expect("same element count");
     }
     Ok(out)
 }
+
+/// Whether `axes` (sorted, distinct) are the last axes of an `ndim`-axis array.
+fn trailing(ndim: usize, axes: &[usize]) -> bool {
+    !axes.is_empty() && axes.iter().enumerate().all(|(i, &a)| a == ndim - axes.len() + i)
+}
+
+/// Σ v in a fixed order: 8 running sums over the positions i mod 8, added pairwise.
+fn sum_fixed<F: Float>(v: &[F]) -> F {
+    let mut acc = [F::zero(); 8];
+    let chunks = v.chunks_exact(8);
+    let rest = chunks.remainder();
+    for c in chunks {
+        // sum l collects the elements i with i mod 8 = l
+        acc.iter_mut().zip(c).for_each(|(a, &x)| *a += x);
+    }
+    acc.iter_mut().zip(rest).for_each(|(a, &x)| *a += x);
+    ((acc[0] + acc[4]) + (acc[2] + acc[6])) + ((acc[1] + acc[5]) + (acc[3] + acc[7]))
+}
+
 
 /// # Gradient
 /// dx = g / count, broadcast over the reduced axes (g with or without the kept axes).
@@ -162,5 +193,14 @@ pub fn mean_bwd<F: Float>(g: ArrayViewD<F>, input_shape: &[usize], axes: &[usize
     let g = g.view().into_shape_with_order(IxDyn(&kept))
         .map_err(|_| Error::shape("mean", "grad_output does not fit the reduced shape", &[("grad_output", g.shape()), ("input", input_shape)]))?;
     let scale = F::one() / F::from_usize(count).unwrap();
+    if trailing(input_shape.len(), axes) {
+        // dx[k·count + i] = g[k] / count: one contiguous run per gradient value
+        let gs = g.as_slice().expect("standard layout");
+        let mut dx = ArrayD::<F>::zeros(IxDyn(input_shape));
+        let ds = dx.as_slice_mut().expect("fresh array");
+        ds.par_chunks_mut(count.max(1)).zip(gs.par_iter()).for_each(|(run, &v)| run.fill(v * scale));
+        return Ok(dx);
+    }
     Ok(g.broadcast(input_shape).unwrap().mapv(|v| v * scale))
 }
+

@@ -8,6 +8,9 @@
 //! | sum to a broadcast shape | `elementwise::sum_to_shape` | broadcast | `g.sum_to_size(shape)` |
 //! | mean over axes | `elementwise::mean_fwd` | `elementwise::mean_bwd` | `x.mean(dim, keepdim)` |
 //! | cat / slice along an axis | `shape::cat_fwd`, `shape::slice_fwd` | `shape::slice_bwd` | `torch.cat`, `x[..., a:b]` |
+//! | iAFF attentional gate: σ(L + G) ⊙ x + (1 - σ(L + G)) ⊙ y, G broadcast over H, W | `gate::attention_gate_fwd` | `gate::attention_gate_bwd` (local, global, x, y) | sigmoid/mul/add (spec a.3) |
+//! | GRU reset gate: [σ(r̃) ⊙ h, x] | `gru::gru_reset_fwd` | `gru::gru_reset_bwd` (zr, hx) | `torch.cat([torch.sigmoid(r) * h, x], 1)` |
+//! | GRU update: (1 - σ(z̃)) ⊙ h + σ(z̃) ⊙ tanh(q̃) (optionally followed by x) | `gru::gru_update_fwd` | `gru::gru_update_bwd` (zr, q, hx) | sigmoid/tanh/mul/add (spec a.8) |
 //! | conv2d (any kernel, stride, per-axis zero padding, bias) | `conv::conv2d_fwd` | `conv::conv2d_bwd` (x, w, b) | `F.conv2d` |
 //! | instance norm (optional affine) | `norm::instance_norm_fwd` | `norm::instance_norm_bwd` (x, w, b) | `F.instance_norm` |
 //! | batch norm (train / eval) | `norm::batch_norm_fwd` | `norm::batch_norm_bwd` (x, w, b) | `F.batch_norm` |
@@ -19,6 +22,8 @@
 //! | unfold / fold (any kernel, dilation, zero padding, stride) | `sample::unfold_fwd`, `sample::fold_fwd` | each other | `F.unfold`, `F.fold` |
 //! | IP correlation (seed stack, grouped channel mean) | `corr::ip_corr_fwd` | `corr::ip_corr_bwd` (fl, stack) | view/mul/mean (spec a.6) |
 //! | RLS correlation (rx x ry window) | `corr::rls_corr_fwd` | `corr::rls_corr_bwd` (fl, warped) | pad/slice/mul/mean (spec a.7) |
+//! | IP correlation fused with the horizontal warp (f_y = 0; channels-last features) | `warp_corr::ip_warp_corr_fwd` | `warp_corr::ip_warp_corr_bwd` (fl, fr) | grid_sample + view/mul/mean (spec a.4, a.6) |
+//! | RLS correlation fused with the horizontal warp (f_y = 0; channels-last features) | `warp_corr::rls_warp_corr_fwd` | `warp_corr::rls_warp_corr_bwd` (fl, fr) | grid_sample + pad/slice/mul/mean (spec a.4, a.7) |
 //! | convex x4 upsampling | `upsample::convex_upsample_fwd` | `upsample::convex_upsample_bwd` (flow, mask) | softmax/unfold/sum (spec a.9) |
 //! | masked L1 sequence loss term | `loss::masked_l1_fwd` | `loss::masked_l1_bwd` (pred) | `(d - gt).abs()[valid].mean()` |
 
@@ -26,6 +31,9 @@ pub mod act;
 pub mod conv;
 pub mod corr;
 pub mod elementwise;
+pub mod gate;
+pub mod gru;
+pub mod lanes;
 pub mod loss;
 pub mod norm;
 pub mod pad;
@@ -34,3 +42,4 @@ pub mod sample;
 pub mod shape;
 pub mod softmax;
 pub mod upsample;
+pub mod warp_corr;

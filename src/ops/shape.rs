@@ -5,10 +5,66 @@
 //! | cat | `cat_fwd` | slices of g (`slice_fwd`) |
 //! | slice x[.., start:stop, ..] | `slice_fwd` | `slice_bwd`: g placed into zeros of the input shape |
 
+use crate::tensor::par_filled;
 use crate::{Error, Float, Result};
-use ndarray::{ArrayD, ArrayViewD, Axis, IxDyn, Slice};
+use ndarray::{ArrayD, ArrayViewD, CowArray, IxDyn};
+use std::mem::MaybeUninit;
+
+/// One run of an output built along an axis: `len` positions copied from positions from..from+len of
+/// a standard-layout source whose axis has `src_len` positions, or zeros.
+enum Part<'a, F> {
+    Copy { src: &'a [F], len: usize, from: usize, src_len: usize },
+    Zero { len: usize },
+}
+
+impl<F> Part<'_, F> {
+    fn len(&self) -> usize {
+        match self {
+            Part::Copy { len, .. } | Part::Zero { len } => *len,
+        }
+    }
+}
+
+/// The array of `shape` that is, along `axis`, the concatenation of `parts` (for every index of the
+/// axes before it), filled in parallel. cat, slice and the slice's backward are all one such call.
+fn assemble<F: Float>(op: &'static str, shape: &[usize], axis: usize, parts: &[Part<F>]) -> Result<ArrayD<F>> {
+    let inner: usize = shape[axis + 1..].iter().product();
+    // flat length of one outer block (all parts), and each part's start within it
+    let block = shape[axis] * inner;
+    let starts: Vec<usize> = parts.iter().scan(0, |acc, p| {
+        let s = *acc;
+        *acc += p.len() * inner;
+        Some(s)
+    }).collect();
+    par_filled(op, shape, |start, chunk: &mut [MaybeUninit<F>]| {
+        let mut pos = start;
+        let mut out = chunk;
+        while !out.is_empty() {
+            // flat index pos = o·block + r; part i holds r in starts[i] .. starts[i] + len_i·inner
+            let (o, r) = (pos / block, pos % block);
+            let i = starts.partition_point(|&s| s <= r) - 1;
+            let run = (starts[i] + parts[i].len() * inner - r).min(out.len());
+            let (dst, rest) = out.split_at_mut(run);
+            match &parts[i] {
+                Part::Copy { src, from, src_len, .. } => {
+                    // source offset = o·src_len·inner + from·inner + (r - starts[i])
+                    let s0 = o * src_len * inner + from * inner + (r - starts[i]);
+                    dst.iter_mut().zip(&src[s0..s0 + run]).for_each(|(d, &v)| {
+                        d.write(v);
+                    });
+                }
+                Part::Zero { .. } => dst.iter_mut().for_each(|d| {
+                    d.write(F::zero());
+                }),
+            }
+            out = rest;
+            pos += run;
+        }
+    })
+}
 
 /// Concatenates arrays along `axis`; all other sizes must agree. Torch: `torch.cat(xs, dim=axis)`.
+/// Copies run in parallel chunks.
 pub fn cat_fwd<F: Float>(xs: &[ArrayViewD<F>], axis: usize) -> Result<ArrayD<F>> {
     let op = "cat";
     let first = xs.first().ok_or_else(|| Error::arg(op, "needs at least one tensor"))?;
@@ -22,8 +78,16 @@ pub fn cat_fwd<F: Float>(xs: &[ArrayViewD<F>], axis: usize) -> Result<ArrayD<F>>
     if !xs.iter().all(fits) {
         return Err(Error::shape(op, format!("sizes must match except along axis {axis}"), &shapes));
     }
-    Ok(ndarray::concatenate(Axis(axis), xs).expect("checked shapes").as_standard_layout().into_owned())
+    let xs: Vec<CowArray<F, IxDyn>> = xs.iter().map(|x| x.as_standard_layout()).collect();
+    let parts: Vec<Part<F>> = xs.iter().map(|x| {
+        let len = x.shape()[axis];
+        Part::Copy { src: x.as_slice().expect("standard layout"), len, from: 0, src_len: len }
+    }).collect();
+    let mut shape = first.shape().to_vec();
+    shape[axis] = parts.iter().map(Part::len).sum();
+    assemble(op, &shape, axis, &parts)
 }
+
 
 fn check_slice(op: &'static str, shape: &[usize], axis: usize, start: usize, stop: usize) -> Result<()> {
     if axis >= shape.len() || start > stop || stop > shape[axis] {
@@ -35,8 +99,13 @@ fn check_slice(op: &'static str, shape: &[usize], axis: usize, start: usize, sto
 /// x[.., start:stop, ..] along `axis`, as a new contiguous array.
 pub fn slice_fwd<F: Float>(x: ArrayViewD<F>, axis: usize, start: usize, stop: usize) -> Result<ArrayD<F>> {
     check_slice("slice", x.shape(), axis, start, stop)?;
-    Ok(x.slice_axis(Axis(axis), Slice::from(start..stop)).as_standard_layout().into_owned())
+    let x = x.as_standard_layout();
+    let mut shape = x.shape().to_vec();
+    shape[axis] = stop - start;
+    let part = Part::Copy { src: x.as_slice().expect("standard layout"), len: stop - start, from: start, src_len: x.shape()[axis] };
+    assemble("slice", &shape, axis, &[part])
 }
+
 
 /// # Gradient
 /// dx = zeros(input_shape) with dx[.., start:start+len, ..] = g.
@@ -48,7 +117,13 @@ pub fn slice_bwd<F: Float>(g: ArrayViewD<F>, input_shape: &[usize], axis: usize,
     if g.shape() != expect.as_slice() {
         return Err(Error::shape("slice", "grad_output does not fit the slice", &[("grad_output", g.shape()), ("input", input_shape)]));
     }
-    let mut dx = ArrayD::<F>::zeros(IxDyn(input_shape));
-    dx.slice_axis_mut(Axis(axis), Slice::from(start..stop)).assign(&g);
-    Ok(dx)
+    let g = g.as_standard_layout();
+    let len = stop - start;
+    let parts = [
+        Part::Zero { len: start },
+        Part::Copy { src: g.as_slice().expect("standard layout"), len, from: 0, src_len: len },
+        Part::Zero { len: input_shape[axis] - stop },
+    ];
+    assemble("slice", input_shape, axis, &parts)
 }
+

@@ -5,6 +5,7 @@ use pyo3::prelude::*;
 
 use super::convert::{arr, float_dispatch, run_kernel};
 use crate::ops::corr::{self, IpCorrCfg, RlsCorrCfg};
+use crate::ops::warp_corr::{self, IpWarpCfg, RlsWarpCfg, IP_SEEDS};
 
 /// IP correlation: grouped channel mean of fl times every seed of the stack.
 ///
@@ -91,10 +92,104 @@ fn rls_corr_bwd<'py>(py: Python<'py>, fl: &Bound<'py, PyAny>, warped: &Bound<'py
     })
 }
 
+/// IP correlation fused with the horizontal warp of the seed stack (vertical flow zero).
+///
+/// Args:
+///     fl: float32/float64 array (N, h, w, C), channels-last left features.
+///     fr: (N, h, w, C), channels-last right features.
+///     flow_x: (N, h, w), horizontal flow in pixels of the level.
+///     groups: channel groups G (C divisible by G).
+///     seeds: the seed offsets (ox, oy), default MIPNet's centre, tl, tr, dl, dr.
+/// Returns:
+///     (N, G*S, h, w), channel S*g + s.
+#[pyfunction]
+#[pyo3(signature = (fl, fr, flow_x, groups=2, seeds=None))]
+fn ip_warp_corr_fwd<'py>(py: Python<'py>, fl: &Bound<'py, PyAny>, fr: &Bound<'py, PyAny>, flow_x: &Bound<'py, PyAny>, groups: usize,
+                         seeds: Option<Vec<(isize, isize)>>) -> PyResult<Bound<'py, PyAny>> {
+    let cfg = IpWarpCfg { groups, seeds: seeds.unwrap_or_else(|| IP_SEEDS.to_vec()) };
+    let op = "ip_warp_correlation";
+    float_dispatch!(op, "fl", fl, F => {
+        let (fl, fr, fx) = (arr::<F>(op, "fl", fl)?, arr::<F>(op, "fr", fr)?, arr::<F>(op, "flow_x", flow_x)?);
+        let (lv, rv, xv) = (fl.as_array(), fr.as_array(), fx.as_array());
+        Ok(run_kernel(py, || warp_corr::ip_warp_corr_fwd(lv, rv, xv, &cfg))?.into_pyarray(py).into_any())
+    })
+}
+
+/// Gradients of `ip_warp_corr_fwd` with respect to fl and fr.
+///
+/// Args:
+///     fl, fr, flow_x, groups, seeds: as in the forward.
+///     g: gradient of the output (N, G*S, h, w).
+/// Returns:
+///     (grad_fl, grad_fr), channels-last.
+#[pyfunction]
+#[pyo3(signature = (fl, fr, flow_x, g, groups=2, seeds=None))]
+fn ip_warp_corr_bwd<'py>(py: Python<'py>, fl: &Bound<'py, PyAny>, fr: &Bound<'py, PyAny>, flow_x: &Bound<'py, PyAny>, g: &Bound<'py, PyAny>,
+                         groups: usize, seeds: Option<Vec<(isize, isize)>>) -> PyResult<Bound<'py, PyAny>> {
+    let cfg = IpWarpCfg { groups, seeds: seeds.unwrap_or_else(|| IP_SEEDS.to_vec()) };
+    let op = "ip_warp_correlation";
+    float_dispatch!(op, "fl", fl, F => {
+        let (fl, fr, fx) = (arr::<F>(op, "fl", fl)?, arr::<F>(op, "fr", fr)?, arr::<F>(op, "flow_x", flow_x)?);
+        let g = arr::<F>(op, "grad_output", g)?;
+        let (lv, rv, xv, gv) = (fl.as_array(), fr.as_array(), fx.as_array(), g.as_array());
+        let grads = run_kernel(py, || warp_corr::ip_warp_corr_bwd(lv, rv, xv, gv, &cfg))?;
+        Ok((grads.fl.into_pyarray(py), grads.fr.into_pyarray(py)).into_pyobject(py)?.into_any())
+    })
+}
+
+/// RLS correlation fused with the horizontal warp of the right features (vertical flow zero).
+///
+/// Args:
+///     fl: float32/float64 array (N, h, w, C), channels-last left features.
+///     fr: (N, h, w, C), channels-last right features.
+///     flow_x: (N, h, w), horizontal flow in pixels of the level.
+///     rx: horizontal radius.
+///     ry: vertical radius.
+/// Returns:
+///     (N, (2rx+1)(2ry+1), h, w), channel (2ry+1)*i + j for the shift (i - rx, j - ry).
+#[pyfunction]
+#[pyo3(signature = (fl, fr, flow_x, rx=3, ry=1))]
+fn rls_warp_corr_fwd<'py>(py: Python<'py>, fl: &Bound<'py, PyAny>, fr: &Bound<'py, PyAny>, flow_x: &Bound<'py, PyAny>, rx: usize,
+                          ry: usize) -> PyResult<Bound<'py, PyAny>> {
+    let cfg = RlsWarpCfg { rx, ry };
+    let op = "rls_warp_correlation";
+    float_dispatch!(op, "fl", fl, F => {
+        let (fl, fr, fx) = (arr::<F>(op, "fl", fl)?, arr::<F>(op, "fr", fr)?, arr::<F>(op, "flow_x", flow_x)?);
+        let (lv, rv, xv) = (fl.as_array(), fr.as_array(), fx.as_array());
+        Ok(run_kernel(py, || warp_corr::rls_warp_corr_fwd(lv, rv, xv, &cfg))?.into_pyarray(py).into_any())
+    })
+}
+
+/// Gradients of `rls_warp_corr_fwd` with respect to fl and fr.
+///
+/// Args:
+///     fl, fr, flow_x, rx, ry: as in the forward.
+///     g: gradient of the output (N, (2rx+1)(2ry+1), h, w).
+/// Returns:
+///     (grad_fl, grad_fr), channels-last.
+#[pyfunction]
+#[pyo3(signature = (fl, fr, flow_x, g, rx=3, ry=1))]
+fn rls_warp_corr_bwd<'py>(py: Python<'py>, fl: &Bound<'py, PyAny>, fr: &Bound<'py, PyAny>, flow_x: &Bound<'py, PyAny>, g: &Bound<'py, PyAny>,
+                          rx: usize, ry: usize) -> PyResult<Bound<'py, PyAny>> {
+    let cfg = RlsWarpCfg { rx, ry };
+    let op = "rls_warp_correlation";
+    float_dispatch!(op, "fl", fl, F => {
+        let (fl, fr, fx) = (arr::<F>(op, "fl", fl)?, arr::<F>(op, "fr", fr)?, arr::<F>(op, "flow_x", flow_x)?);
+        let g = arr::<F>(op, "grad_output", g)?;
+        let (lv, rv, xv, gv) = (fl.as_array(), fr.as_array(), fx.as_array(), g.as_array());
+        let grads = run_kernel(py, || warp_corr::rls_warp_corr_bwd(lv, rv, xv, gv, &cfg))?;
+        Ok((grads.fl.into_pyarray(py), grads.fr.into_pyarray(py)).into_pyobject(py)?.into_any())
+    })
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(ip_corr_fwd, m)?)?;
     m.add_function(wrap_pyfunction!(ip_corr_bwd, m)?)?;
     m.add_function(wrap_pyfunction!(rls_corr_fwd, m)?)?;
     m.add_function(wrap_pyfunction!(rls_corr_bwd, m)?)?;
+    m.add_function(wrap_pyfunction!(ip_warp_corr_fwd, m)?)?;
+    m.add_function(wrap_pyfunction!(ip_warp_corr_bwd, m)?)?;
+    m.add_function(wrap_pyfunction!(rls_warp_corr_fwd, m)?)?;
+    m.add_function(wrap_pyfunction!(rls_warp_corr_bwd, m)?)?;
     Ok(())
 }

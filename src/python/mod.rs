@@ -9,6 +9,8 @@ mod corr;
 mod elementwise;
 mod errors;
 mod gemm;
+mod gate;
+mod gru;
 mod loss;
 mod norm;
 mod pad;
@@ -30,6 +32,17 @@ fn get_num_threads() -> usize {
     crate::parallel::num_threads()
 }
 
+/// The instruction set of the channels-last kernels (warp_corr): "avx512", "avx2" or "generic"
+/// (`MIPNET_ISA` lowers it).
+#[pyfunction]
+fn simd_isa() -> &'static str {
+    match crate::ops::lanes::isa() {
+        crate::ops::lanes::Isa::Avx512 => "avx512",
+        crate::ops::lanes::Isa::Avx2 => "avx2",
+        crate::ops::lanes::Isa::Generic => "generic",
+    }
+}
+
 /// Called by `os.register_at_fork(after_in_child=...)`: the child rebuilds the pool on first use.
 #[pyfunction]
 fn _reset_after_fork() {
@@ -43,12 +56,15 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(_reset_after_fork, m)?)?;
+    m.add_function(wrap_pyfunction!(simd_isa, m)?)?;
     errors::register(m)?;
     act::register(m)?;
     conv::register(m)?;
     corr::register(m)?;
     elementwise::register(m)?;
     gemm::register(m)?;
+    gate::register(m)?;
+    gru::register(m)?;
     loss::register(m)?;
     norm::register(m)?;
     pad::register(m)?;

@@ -8,6 +8,8 @@ from ._act import *  # noqa: F401,F403
 from ._conv import *  # noqa: F401,F403
 from ._corr import *  # noqa: F401,F403
 from ._elementwise import *  # noqa: F401,F403
+from ._gate import *  # noqa: F401,F403
+from ._gru import *  # noqa: F401,F403
 from ._loss import *  # noqa: F401,F403
 from ._norm import *  # noqa: F401,F403
 from ._pad import *  # noqa: F401,F403

@@ -11,6 +11,8 @@ __all__ = ["relu", "sigmoid", "tanh"]
 
 
 class _Unary(Function):
+    fresh_grads = True
+
     @staticmethod
     def forward(ctx, x, act):
         y = _core.unary_fwd(x, act)

@@ -13,6 +13,7 @@ __all__ = ["conv2d", "conv2d_relu"]
 
 class _Conv2d(Function):
     name = "conv2d"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, weight, bias, stride, padding):

@@ -1,7 +1,13 @@
-"""The stereo correlations of MIPNet, fused (kernels: ``ip_corr_fwd`` / ``ip_corr_bwd``,
-``rls_corr_fwd`` / ``rls_corr_bwd``; spec a.6, a.7)."""
+"""The stereo correlations of MIPNet, fused (spec a.6, a.7).
+
+Kernels: ``ip_corr_fwd`` / ``ip_corr_bwd`` and ``rls_corr_fwd`` / ``rls_corr_bwd`` on already warped
+maps (any flow), and ``ip_warp_corr_fwd`` / ``ip_warp_corr_bwd``, ``rls_warp_corr_fwd`` /
+``rls_warp_corr_bwd`` with the warp inside, for a flow whose vertical component is zero.
+"""
 
 from __future__ import annotations
+
+import numpy as np
 
 from .. import _core
 from ..autograd import Function
@@ -9,11 +15,15 @@ from ..errors import ArgumentError
 from ..tensor import Tensor
 from ._common import as_tensor
 
-__all__ = ["ip_correlation", "rls_correlation"]
+__all__ = ["ip_correlation", "rls_correlation", "ip_warp_correlation", "rls_warp_correlation", "IP_SEEDS"]
+
+#: MIPNet's IP seed offsets (ox, oy) in stack order (spec a.6): centre, tl, tr, dl, dr.
+IP_SEEDS = ((0, 0), (-1, -1), (1, -1), (-1, 1), (1, 1))
 
 
 class _IpCorr(Function):
     name = "ip_correlation"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, fl, stack, groups):
@@ -30,6 +40,7 @@ class _IpCorr(Function):
 
 class _RlsCorr(Function):
     name = "rls_correlation"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, fl, warped, rx, ry):
@@ -92,3 +103,99 @@ def rls_correlation(fl: Tensor, warped: Tensor, rx: int = 3, ry: int = 1) -> Ten
         raise ArgumentError(f"rls_correlation: rx and ry must be non-negative, got rx={rx}, ry={ry}")
     f = as_tensor(fl)
     return _RlsCorr.apply(f, as_tensor(warped, f), int(rx), int(ry))
+
+
+class _IpWarpCorr(Function):
+    name = "ip_warp_correlation"
+    fresh_grads = True
+
+    @staticmethod
+    def forward(ctx, fl, fr, flow_x, groups, seeds):
+        ctx.save_for_backward(fl, fr, flow_x)
+        ctx.groups, ctx.seeds = groups, seeds
+        return _core.ip_warp_corr_fwd(fl, fr, flow_x, groups, seeds)
+
+    @staticmethod
+    def backward(ctx, g):
+        fl, fr, flow_x = ctx.saved_tensors
+        dfl, dfr = _core.ip_warp_corr_bwd(fl, fr, flow_x, g, ctx.groups, ctx.seeds)
+        return dfl, dfr, None, None, None
+
+
+class _RlsWarpCorr(Function):
+    name = "rls_warp_correlation"
+    fresh_grads = True
+
+    @staticmethod
+    def forward(ctx, fl, fr, flow_x, rx, ry):
+        ctx.save_for_backward(fl, fr, flow_x)
+        ctx.rx, ctx.ry = rx, ry
+        return _core.rls_warp_corr_fwd(fl, fr, flow_x, rx, ry)
+
+    @staticmethod
+    def backward(ctx, g):
+        fl, fr, flow_x = ctx.saved_tensors
+        dfl, dfr = _core.rls_warp_corr_bwd(fl, fr, flow_x, g, ctx.rx, ctx.ry)
+        return dfl, dfr, None, None, None
+
+
+def _flow_x(flow_x, like: Tensor):
+    """The horizontal flow as a C-contiguous array of ``like``'s dtype (it receives no gradient)."""
+    a = flow_x.numpy() if isinstance(flow_x, Tensor) else np.asarray(flow_x)
+    return np.ascontiguousarray(a, dtype=like.dtype)
+
+
+def ip_warp_correlation(fl: Tensor, fr: Tensor, flow_x, groups: int = 2, seeds=IP_SEEDS) -> Tensor:
+    """IP correlation of the seed stack warped by a horizontal flow, without building either (spec a.6).
+
+    Equals ``ip_correlation(fl, grid_sample(stack(fr), grid(flow)))`` for the flow ``(flow_x, 0)``
+    (border padding, align_corners=True) with ``stack`` the seed shifts ``S_s(y, x) = fr(clamp(y +
+    oy), clamp(x + ox))``: output channel ``S*g + s`` is the mean over group g's channels of ``fl``
+    times the warped seed s. The flow gets no gradient.
+
+    Parameters
+    ----------
+    fl, fr : Tensor
+        Left and right features, channels-last (N, h, w, C).
+    flow_x : array or Tensor
+        Horizontal flow (N, h, w) in pixels of the level (``-disparity``).
+    groups : int
+        Channel groups G; C must be divisible by G.
+    seeds : sequence of (ox, oy)
+        Seed offsets in stack order (default: MIPNet's five).
+
+    Shapes
+    ------
+    fl, fr (N, h, w, C), flow_x (N, h, w) -> (N, G·S, h, w).
+    """
+    if int(groups) < 1:
+        raise ArgumentError(f"ip_warp_correlation: groups must be positive, got {groups}")
+    f = as_tensor(fl)
+    return _IpWarpCorr.apply(f, as_tensor(fr, f), _flow_x(flow_x, f), int(groups),
+                             [(int(ox), int(oy)) for ox, oy in seeds])
+
+
+def rls_warp_correlation(fl: Tensor, fr: Tensor, flow_x, rx: int = 3, ry: int = 1) -> Tensor:
+    """RLS correlation of the right features warped by a horizontal flow, without building the warped
+    map (spec a.7).
+
+    Equals ``rls_correlation(fl, grid_sample(fr, grid(flow)), rx, ry)`` for the flow ``(flow_x, 0)``
+    (border padding, align_corners=True). The flow gets no gradient.
+
+    Parameters
+    ----------
+    fl, fr : Tensor
+        Left and right features, channels-last (N, h, w, C).
+    flow_x : array or Tensor
+        Horizontal flow (N, h, w) in pixels of the level.
+    rx, ry : int
+        Horizontal and vertical search radii.
+
+    Shapes
+    ------
+    fl, fr (N, h, w, C), flow_x (N, h, w) -> (N, (2rx+1)(2ry+1), h, w).
+    """
+    if int(rx) < 0 or int(ry) < 0:
+        raise ArgumentError(f"rls_warp_correlation: rx and ry must be non-negative, got rx={rx}, ry={ry}")
+    f = as_tensor(fl)
+    return _RlsWarpCorr.apply(f, as_tensor(fr, f), _flow_x(flow_x, f), int(rx), int(ry))

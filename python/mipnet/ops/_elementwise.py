@@ -33,12 +33,13 @@ class _Binary(Function):
         return g, (g if ctx.op == "add" else _core.affine_fwd(g, -1.0, 0.0)), None
 
 
-#: One Function class per binary op, so errors name the op.
-_BINARY = {op: type(f"_{op.title()}", (_Binary,), {"name": op}) for op in ("add", "sub", "mul")}
+#: One Function class per binary op, so errors name the op (add/sub pass g itself on: not fresh).
+_BINARY = {op: type(f"_{op.title()}", (_Binary,), {"name": op, "fresh_grads": op == "mul"}) for op in ("add", "sub", "mul")}
 
 
 class _Affine(Function):
     name = "affine"
+    fresh_grads = True
     @staticmethod
     def forward(ctx, x, alpha, beta):
         ctx.alpha = alpha
@@ -84,6 +85,7 @@ def _axes(dim: int | Iterable[int] | None, ndim: int) -> list[int]:
 
 class _Mean(Function):
     name = "mean"
+    fresh_grads = True
     @staticmethod
     def forward(ctx, x, axes, keepdim):
         ctx.shape, ctx.axes = list(x.shape), axes
@@ -110,6 +112,7 @@ def sum(input: Tensor, dim: int | Iterable[int] | None = None, keepdim: bool = F
 
 class _Cast(Function):
     name = "to_dtype"
+    fresh_grads = True
     @staticmethod
     def forward(ctx, x, dtype):
         ctx.src = x.dtype

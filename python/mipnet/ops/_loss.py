@@ -16,6 +16,7 @@ __all__ = ["masked_l1_loss"]
 
 class _MaskedL1(Function):
     name = "masked_l1_loss"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, pred, target, valid):

@@ -23,6 +23,7 @@ def _affine_grads(ctx, dw, db) -> tuple:
 
 class _InstanceNorm(Function):
     name = "instance_norm"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, weight, bias, eps):
@@ -39,6 +40,7 @@ class _InstanceNorm(Function):
 
 class _BatchNorm(Function):
     name = "batch_norm"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, weight, bias, running_mean, running_var, training, momentum, eps):

@@ -15,6 +15,7 @@ __all__ = ["pad"]
 
 class _Pad(Function):
     name = "pad"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, pad4, mode, value):

@@ -16,6 +16,7 @@ __all__ = ["avg_pool2d", "adaptive_avg_pool2d"]
 
 class _AvgPool2d(Function):
     name = "avg_pool2d"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, geometry):

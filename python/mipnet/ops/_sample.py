@@ -22,6 +22,7 @@ __all__ = ["grid_sample", "interpolate", "unfold", "fold"]
 
 class _GridSample(Function):
     name = "grid_sample"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, grid, padding_mode, align_corners):
@@ -72,6 +73,7 @@ def grid_sample(input: Tensor, grid: Tensor, mode: str = "bilinear", padding_mod
 
 class _Interpolate(Function):
     name = "interpolate"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, size, align_corners, scales):
@@ -157,6 +159,7 @@ def _geometry(op: str, kernel_size: Any, dilation: Any, padding: Any, stride: An
 
 class _Unfold(Function):
     name = "unfold"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, geo):
@@ -175,6 +178,7 @@ class _Unfold(Function):
 
 class _Fold(Function):
     name = "fold"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, cols, output_size, geo):

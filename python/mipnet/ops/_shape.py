@@ -12,11 +12,12 @@ from ..errors import ArgumentError, ShapeError
 from ..tensor import Tensor
 from ._common import as_tensor
 
-__all__ = ["cat", "split", "narrow", "index", "reshape", "permute", "flatten"]
+__all__ = ["cat", "cat_relu", "split", "narrow", "index", "reshape", "permute", "flatten"]
 
 
 class _Cat(Function):
     name = "cat"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, *xs, dim):
@@ -28,6 +29,32 @@ class _Cat(Function):
         starts = np.cumsum([0] + ctx.sizes)
         # grad of input i = g[.., starts[i]:starts[i+1], ..] along the cat axis
         return tuple(_core.slice_fwd(g, ctx.dim, int(starts[i]), int(starts[i + 1])) for i in range(len(ctx.sizes)))
+
+
+class _CatRelu(Function):
+    name = "cat_relu"
+    fresh_grads = True
+
+    @staticmethod
+    def forward(ctx, *xs, dim, relu):
+        ctx.dim, ctx.sizes, ctx.relu = dim, [x.shape[dim] for x in xs], relu
+        out = _core.cat_fwd([_core.unary_fwd(x, "relu") if r else x for x, r in zip(xs, relu)], dim)
+        # only the output is kept: relu's backward mask is out > 0 on the relu'd pieces
+        ctx.save_for_backward(out)
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        (out,) = ctx.saved_tensors
+        starts = np.cumsum([0] + ctx.sizes)
+        grads = []
+        for i, r in enumerate(ctx.relu):
+            # grad of input i = g[.., starts[i]:starts[i+1], ..], times [out > 0] where relu'd
+            gi = _core.slice_fwd(g, ctx.dim, int(starts[i]), int(starts[i + 1]))
+            if r:
+                gi = _core.unary_bwd(_core.slice_fwd(out, ctx.dim, int(starts[i]), int(starts[i + 1])), gi, "relu")
+            grads.append(gi)
+        return tuple(grads)
 
 
 def _norm_dim(dim: int, ndim: int, op: str, shape: Sequence[int]) -> int:
@@ -44,8 +71,19 @@ def cat(tensors: Sequence[Tensor], dim: int = 0) -> Tensor:
     return _Cat.apply(*ts, dim=_norm_dim(dim, ts[0].ndim, "cat", ts[0].shape))
 
 
+def cat_relu(tensors: Sequence[Tensor], relu: Sequence[bool], dim: int = 0) -> Tensor:
+    """``cat([relu(t) if r else t for t, r in zip(tensors, relu)], dim)``, keeping only the result for
+    the backward (the relu'd inputs are not kept a second time, as separate relu ops would).
+    """
+    ts = [as_tensor(t) for t in tensors]
+    if not ts or len(relu) != len(ts):
+        raise ArgumentError(f"cat_relu: expected one relu flag per tensor, got {len(ts)} tensors and {len(relu)} flags")
+    return _CatRelu.apply(*ts, dim=_norm_dim(dim, ts[0].ndim, "cat_relu", ts[0].shape), relu=tuple(bool(r) for r in relu))
+
+
 class _Slice(Function):
     name = "slice"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, axis, start, stop):

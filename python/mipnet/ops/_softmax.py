@@ -16,6 +16,7 @@ __all__ = ["softmax"]
 
 class _Softmax(Function):
     name = "softmax"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, x, dim):

@@ -13,6 +13,7 @@ __all__ = ["convex_upsample"]
 
 class _ConvexUpsample(Function):
     name = "convex_upsample"
+    fresh_grads = True
 
     @staticmethod
     def forward(ctx, flow, mask, rate):

@@ -1,0 +1,187 @@
+//! The allocator of every Rust-side buffer: the system allocator, plus a small cache of large blocks.
+//!
+//! A fresh multi-MB block is a new mapping, and touching it costs one page fault per 4 KiB page. On
+//! the virtual machines mipnet was profiled on that is 10-20 µs a page: a 35 MB `cat` output took
+//! 80 ms to fault in while its copy took 5 ms, and freeing it again (`munmap`) flushes the TLBs of
+//! every core. MIPNet allocates the same sizes over and over (every sub-update of a level has the same
+//! shapes), so freed large blocks are kept, already mapped, and handed out again for a request of the
+//! same size class (classes 25% apart, see [`class`]), at most `CACHE_BYTES` in all. Large blocks are
+//! also advised to be backed by transparent huge pages (Linux `MADV_HUGEPAGE`), as numpy does.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::Mutex;
+
+/// Blocks from this size on are advised and cached.
+const HUGE_MIN: usize = 4 << 20;
+/// Most bytes the cache holds.
+const CACHE_BYTES: usize = 1 << 30;
+/// Most blocks the cache holds.
+const CACHE_SLOTS: usize = 64;
+/// Alignment of every cached block (malloc's own for large blocks).
+const ALIGN: usize = 16;
+
+/// Cached blocks: (bytes, address), oldest first; address 0 marks a free slot.
+struct Cache {
+    slots: [(usize, usize); CACHE_SLOTS],
+    bytes: usize,
+}
+
+static CACHE: Mutex<Cache> = Mutex::new(Cache { slots: [(0, 0); CACHE_SLOTS], bytes: 0 });
+
+/// Bytes reserved for a large request of `size`: the smallest class c_k >= size, with c_0 = HUGE_MIN
+/// and c_{k+1} = c_k · 5/4 rounded up to 64 KiB, so that near sizes share blocks. A block only
+/// becomes resident where it is written, so the unused tail of a class costs address space only.
+fn class(size: usize) -> usize {
+    let mut c = HUGE_MIN;
+    while c < size {
+        c = (c + c / 4).next_multiple_of(64 << 10);
+    }
+    c
+}
+
+impl Cache {
+    /// A cached block of exactly `bytes` (a class size), removed from the cache.
+    fn take(&mut self, bytes: usize) -> Option<*mut u8> {
+        let i = (0..CACHE_SLOTS).find(|&i| self.slots[i].1 != 0 && self.slots[i].0 == bytes)?;
+        let (size, addr) = std::mem::replace(&mut self.slots[i], (0, 0));
+        self.bytes -= size;
+        Some(addr as *mut u8)
+    }
+
+    /// Keeps the block unless it does not fit; returns the blocks to free (at most two: the evicted
+    /// oldest and, if it still does not fit, the block itself).
+    fn put(&mut self, bytes: usize, ptr: *mut u8) -> [(usize, *mut u8); 2] {
+        let mut out = [(0, std::ptr::null_mut()); 2];
+        if bytes > CACHE_BYTES {
+            out[0] = (bytes, ptr);
+            return out;
+        }
+        if self.bytes + bytes > CACHE_BYTES || self.slots.iter().all(|s| s.1 != 0) {
+            // evict the largest cached block (frees the most with one munmap)
+            if let Some(i) = (0..CACHE_SLOTS).filter(|&i| self.slots[i].1 != 0).max_by_key(|&i| self.slots[i].0) {
+                let (size, addr) = std::mem::replace(&mut self.slots[i], (0, 0));
+                self.bytes -= size;
+                out[0] = (size, addr as *mut u8);
+            }
+        }
+        match self.slots.iter().position(|s| s.1 == 0) {
+            Some(i) if self.bytes + bytes <= CACHE_BYTES => {
+                self.slots[i] = (bytes, ptr as usize);
+                self.bytes += bytes;
+            }
+            _ => out[1] = (bytes, ptr),
+        }
+        out
+    }
+}
+
+/// [`System`], with large blocks cached and advised to use huge pages.
+pub struct HugePageAlloc;
+
+fn large(layout: &Layout) -> bool {
+    layout.size() >= HUGE_MIN && layout.align() <= ALIGN
+}
+
+/// Frees a block of `bytes` reserved by [`HugePageAlloc`] (null: nothing).
+fn release(bytes: usize, ptr: *mut u8) {
+    if !ptr.is_null() {
+        // SAFETY: `ptr` was returned by System.alloc with exactly this size and alignment.
+        unsafe { System.dealloc(ptr, Layout::from_size_align_unchecked(bytes, ALIGN)) }
+    }
+}
+
+// SAFETY: small blocks and over-aligned ones go to `System` unchanged. A large block is reserved from
+// `System` with its class size and ALIGN, and only ever freed (or cached) with those, since a layout
+// always maps to the same class; a cached block is owned by the cache alone until `alloc` hands it
+// out again, to one caller, for a layout of the same class (so at most its size).
+unsafe impl GlobalAlloc for HugePageAlloc {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if !large(&layout) {
+            // SAFETY: forwarded contract of `GlobalAlloc::alloc`.
+            return unsafe { System.alloc(layout) };
+        }
+        let bytes = class(layout.size());
+        if let Some(p) = CACHE.lock().unwrap_or_else(|e| e.into_inner()).take(bytes) {
+            return p;
+        }
+        // SAFETY: non-zero size, valid power-of-two alignment.
+        let p = unsafe { System.alloc(Layout::from_size_align_unchecked(bytes, ALIGN)) };
+        advise_huge_pages(p, bytes);
+        p
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        if !large(&layout) {
+            // SAFETY: forwarded contract of `GlobalAlloc::alloc_zeroed`.
+            return unsafe { System.alloc_zeroed(layout) };
+        }
+        let bytes = class(layout.size());
+        if let Some(p) = CACHE.lock().unwrap_or_else(|e| e.into_inner()).take(bytes) {
+            // SAFETY: the cached block has `bytes` >= layout.size() writable bytes, owned by us now.
+            unsafe { std::ptr::write_bytes(p, 0, layout.size()) };
+            return p;
+        }
+        // a fresh block from calloc: zero pages that are only faulted in when written
+        // SAFETY: non-zero size, valid power-of-two alignment.
+        let p = unsafe { System.alloc_zeroed(Layout::from_size_align_unchecked(bytes, ALIGN)) };
+        advise_huge_pages(p, bytes);
+        p
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        // SAFETY: forwarded contract of `GlobalAlloc::realloc` (new_size > 0, valid for layout.align()).
+        let new = unsafe { Layout::from_size_align_unchecked(new_size, layout.align()) };
+        if !large(&layout) && !large(&new) {
+            // SAFETY: both small: System owns the block and its reallocation.
+            return unsafe { System.realloc(ptr, layout, new_size) };
+        }
+        if large(&layout) && large(&new) && class(layout.size()) == class(new_size) {
+            return ptr;
+        }
+        // SAFETY: a fresh block of the new layout, then the old one's bytes, then the old one freed.
+        unsafe {
+            let p = self.alloc(new);
+            if !p.is_null() {
+                std::ptr::copy_nonoverlapping(ptr, p, layout.size().min(new_size));
+                self.dealloc(ptr, layout);
+            }
+            p
+        }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        if !large(&layout) {
+            // SAFETY: forwarded contract of `GlobalAlloc::dealloc`.
+            return unsafe { System.dealloc(ptr, layout) };
+        }
+        let freed = CACHE.lock().unwrap_or_else(|e| e.into_inner()).put(class(layout.size()), ptr);
+        for (bytes, p) in freed {
+            release(bytes, p);
+        }
+    }
+}
+
+/// Advises the kernel to back `[ptr, ptr + bytes)` with huge pages (only the whole pages inside; a no-op
+/// for null, for blocks under `HUGE_MIN` and off Linux; failure is harmless).
+pub fn advise_huge_pages(ptr: *mut u8, bytes: usize) {
+    #[cfg(target_os = "linux")]
+    {
+        const PAGE: usize = 4096;
+        const MADV_HUGEPAGE: std::ffi::c_int = 14;
+        extern "C" {
+            fn madvise(addr: *mut std::ffi::c_void, len: usize, advice: std::ffi::c_int) -> std::ffi::c_int;
+        }
+        if ptr.is_null() || bytes < HUGE_MIN {
+            return;
+        }
+        // the whole 4 KiB pages inside the block: [round up(ptr), round down(ptr + bytes))
+        let start = (ptr as usize).next_multiple_of(PAGE);
+        let end = (ptr as usize + bytes) & !(PAGE - 1);
+        if end > start {
+            // SAFETY: the range lies inside a live allocation; madvise only changes paging policy.
+            unsafe { madvise(start as *mut std::ffi::c_void, end - start, MADV_HUGEPAGE) };
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = (ptr, bytes);
+}

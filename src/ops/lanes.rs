@@ -1,0 +1,181 @@
+//! Vector helpers of the channels-last kernels (`warp_corr`, `gru`): a dot product and an axpy with a
+//! fixed summation order, and the instruction set their loops are compiled for.
+//!
+//! A dot product keeps `LANES` running sums (element i goes to sum i mod `LANES`) and adds them
+//! pairwise at the end. That order is part of the definition, not of the machine: the compiler maps
+//! the sums onto one AVX-512 register, two AVX2 registers or four SSE2 registers, and without FMA
+//! contraction every ISA computes the same bits. So results do not depend on the ISA or the thread count.
+//!
+//! `MIPNET_ISA` (`avx512`, `avx2`, `generic`) lowers the instruction set below what the CPU offers.
+
+use crate::Float;
+use std::sync::OnceLock;
+
+/// Running sums of [`dot`].
+pub const LANES: usize = 16;
+
+/// The instruction set the multiversioned loops run with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Isa {
+    Generic,
+    Avx2,
+    Avx512,
+}
+
+/// The best instruction set of this CPU, capped by `MIPNET_ISA`; decided once per process.
+pub fn isa() -> Isa {
+    static ISA: OnceLock<Isa> = OnceLock::new();
+    *ISA.get_or_init(|| {
+        let cpu = detect();
+        match std::env::var("MIPNET_ISA").ok().as_deref().map(str::trim) {
+            Some("generic") => Isa::Generic,
+            Some("avx2") => cpu.min(Isa::Avx2),
+            _ => cpu,
+        }
+    })
+}
+
+fn detect() -> Isa {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if is_x86_feature_detected!("avx512f") {
+            return Isa::Avx512;
+        }
+        if is_x86_feature_detected!("avx2") {
+            return Isa::Avx2;
+        }
+    }
+    Isa::Generic
+}
+
+/// Σ a_i b_i over the common length, in the fixed order of the module doc.
+#[inline(always)]
+pub fn dot<F: Float>(a: &[F], b: &[F]) -> F {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [F::zero(); LANES];
+    let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        let (x, y): (&[F; LANES], &[F; LANES]) = (x.try_into().expect("exact chunk"), y.try_into().expect("exact chunk"));
+        for l in 0..LANES {
+            // sum l collects the elements i with i mod LANES = l
+            acc[l] += x[l] * y[l];
+        }
+    }
+    for (l, (&x, &y)) in ra.iter().zip(rb).enumerate() {
+        acc[l] += x * y;
+    }
+    // pairwise: sums l and l + half, halving until one is left
+    let mut half = LANES / 2;
+    while half > 0 {
+        for l in 0..half {
+            acc[l] = acc[l] + acc[l + half];
+        }
+        half /= 2;
+    }
+    acc[0]
+}
+
+/// y += alpha · x over the common length.
+#[inline(always)]
+pub fn axpy<F: Float>(alpha: F, x: &[F], y: &mut [F]) {
+    y.iter_mut().zip(x).for_each(|(y, &x)| *y += alpha * x);
+}
+
+/// Defines `fn $name<F: Float>(args)` whose body is compiled three times (AVX-512F, AVX2, generic)
+/// and dispatched on [`isa`]. The body must only call `#[inline(always)]` helpers for them to be
+/// compiled with the wider registers.
+macro_rules! multiversion {
+    ($(#[$meta:meta])* $vis:vis fn $name:ident<F: Float>($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
+        $(#[$meta])*
+        $vis fn $name<F: $crate::Float>($($arg: $ty),*) {
+            #[inline(always)]
+            fn body<F: $crate::Float>($($arg: $ty),*) $body
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx512f")]
+            unsafe fn avx512<F: $crate::Float>($($arg: $ty),*) {
+                body($($arg),*)
+            }
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2")]
+            unsafe fn avx2<F: $crate::Float>($($arg: $ty),*) {
+                body($($arg),*)
+            }
+            match $crate::ops::lanes::isa() {
+                // SAFETY: isa() reports AVX-512F only where the CPU has it.
+                #[cfg(target_arch = "x86_64")]
+                $crate::ops::lanes::Isa::Avx512 => unsafe { avx512($($arg),*) },
+                // SAFETY: isa() reports AVX2 only where the CPU has it.
+                #[cfg(target_arch = "x86_64")]
+                $crate::ops::lanes::Isa::Avx2 => unsafe { avx2($($arg),*) },
+                _ => body($($arg),*),
+            }
+        }
+    };
+}
+pub(crate) use multiversion;
+
+/// e^x. f32: Cephes' `expf` (range reduction x = n·ln2 + r, degree-6 polynomial, about 1 ulp), written
+/// without branches or calls so that loops over it vectorise; x is clamped to [-87.33, 88.37], the
+/// range of normal results. f64: the platform's `exp`.
+#[inline(always)]
+pub fn exp<F: Float>(x: F) -> F {
+    match as_f32(x) {
+        Some(v) => from_f32(exp_f32(v)),
+        None => x.exp(),
+    }
+}
+
+/// σ(x) = 1 / (1 + e^-x), with [`exp`].
+#[inline(always)]
+pub fn sigmoid<F: Float>(x: F) -> F {
+    F::one() / (F::one() + exp(-x))
+}
+
+/// tanh(x). f32: Cephes' `tanhf` (odd polynomial for |x| < 0.625, else 1 - 2 / (e^{2|x|} + 1), with
+/// the sign of x; about 2 ulp), branch-free; f64: the platform's `tanh`.
+#[inline(always)]
+pub fn tanh<F: Float>(x: F) -> F {
+    match as_f32(x) {
+        Some(v) => from_f32(tanh_f32(v)),
+        None => x.tanh(),
+    }
+}
+
+#[inline(always)]
+fn as_f32<F: Float>(x: F) -> Option<f32> {
+    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>() {
+        x.to_f32()
+    } else {
+        None
+    }
+}
+
+#[inline(always)]
+fn from_f32<F: Float>(v: f32) -> F {
+    F::from(v).expect("F is f32")
+}
+
+#[inline(always)]
+fn exp_f32(x: f32) -> f32 {
+    let x = x.clamp(-87.336_54, 88.376_26);
+    // n = round(x / ln 2); r = x - n·ln 2 in two parts (C1 + C2 = ln 2) for accuracy
+    let n = (x * std::f32::consts::LOG2_E + 0.5).floor();
+    let r = x - n * 0.693_359_4 - n * -2.121_944_4e-4;
+    let r2 = r * r;
+    let p = (((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r + 1.666_666_5e-1) * r + 5.000_000_1e-1) * r2 + r + 1.0;
+    // 2^n from its exponent bits: (n + 127) << 23, n in [-126, 127]
+    p * f32::from_bits(((n as i32 + 127) as u32) << 23)
+}
+
+#[inline(always)]
+fn tanh_f32(x: f32) -> f32 {
+    let a = x.abs();
+    let z = x * x;
+    // |x| < 0.625: x + x·z·P(z)
+    let small = x + x * z * ((((-5.704_988_7e-3 * z + 2.063_908_9e-2) * z - 5.373_971_6e-2) * z + 1.333_144_2e-1) * z - 3.333_328_2e-1);
+    // otherwise: sign(x)·(1 - 2 / (e^{2|x|} + 1))
+    let large = (1.0 - 2.0 / (exp_f32(2.0 * a) + 1.0)).copysign(x);
+    if a < 0.625 { small } else { large }
+}
