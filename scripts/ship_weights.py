@@ -1,0 +1,49 @@
+"""Ship a campaign run's best weights inside the package, as float16 with their provenance.
+
+    python scripts/ship_weights.py ~/.cache/mipnet/train/s1-128x256 [--weights best.safetensors]
+
+Writes ``python/mipnet/assets/mipnet_pretrained.safetensors`` with metadata: what it was trained on
+(data specs, generator version, steps, crop, batch, iterations), the exact commands
+(``RUN/commands.txt``), the package version and the validation table of the step it comes from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+
+from mipnet.pretrained import PRETRAINED_PATH, export_pretrained  # noqa: E402
+from mipnet.training.log import TrainLog  # noqa: E402
+from mipnet.weights import load_safetensors  # noqa: E402
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("run", help="run folder of mipnet train")
+    p.add_argument("--weights", default="best.safetensors", help="file in the run folder (default best.safetensors)")
+    args = p.parse_args()
+    source = os.path.join(args.run, args.weights)
+    _, meta = load_safetensors(source)
+    step = int(meta["step"])
+    records = TrainLog(os.path.join(args.run, "log.jsonl")).records()
+    validation = next((r["val"] for r in records if "val" in r and r["step"] == step), None)
+    sgbm = next((r["val_sgbm"] for r in records if "val_sgbm" in r), None)
+    config = json.loads(meta["train_config"])
+    commands_path = os.path.join(args.run, "commands.txt")
+    commands = open(commands_path).read().strip().splitlines() if os.path.exists(commands_path) else []
+    trained = (f"{step} steps from scratch on mipnet's generated scenes ({' '.join(config['data'])}), "
+               f"crop {config['crop'][0]}x{config['crop'][1]}, batch {config['batch_size']}, "
+               f"iterations {tuple(config['iters'])} while training, max LR {config['lr']:g}, on a 2-core CPU")
+    export_pretrained(source, PRETRAINED_PATH, trained=trained, commands=commands, validation=validation,
+                      validation_sgbm=sgbm, validation_setup={"pairs": config["val_pairs"], "size": config["val_size"],
+                                                             "iters": config["val_iters"], "seeds_from": 1_000_000})
+    print(f"wrote {PRETRAINED_PATH} ({os.path.getsize(PRETRAINED_PATH) / 2**20:.1f} MiB) from {source} (step {step})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
