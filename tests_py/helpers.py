@@ -83,3 +83,20 @@ def check_op(
         theirs = np.zeros_like(arrays[i]) if tg is None else tg.numpy()
         assert m_in[i].grad is not None, f"grad of input {i} is None"
         assert_close(m_in[i].grad.numpy(), theirs, tol["grad_atol"], tol["grad_rtol"], f"grad of input {i}")
+
+
+def sample_right(right, disparity):
+    """Right image sampled at (x - d, y), linear along x; and where x - d lies inside the image.
+
+    Shapes
+    ------
+    right: (H, W, 3), disparity: (H, W) -> (H, W, 3) float64, (H, W) bool.
+    """
+    height, width = disparity.shape
+    y, x = np.indices((height, width))
+    xr = x - disparity
+    # left neighbour of the sample position, kept so that x0 + 1 is a column
+    x0 = np.clip(np.floor(xr).astype(int), 0, width - 2)
+    t = np.clip(xr - x0, 0, 1)[..., None]
+    r = right.astype(np.float64)
+    return (1 - t) * r[y, x0] + t * r[y, x0 + 1], (xr >= 0) & (xr <= width - 1)

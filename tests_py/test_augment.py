@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from helpers import require
+from helpers import require, sample_right
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mipnet.data import make_pair
@@ -39,23 +39,6 @@ def _rng(seed):
 
 def _copy(sample):
     return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in sample.items()}
-
-
-def _sample_right(right, disparity):
-    """Right image sampled at (x - d, y), linear along x; and where x - d lies inside the image.
-
-    Shapes
-    ------
-    right: (H, W, 3), disparity: (H, W) -> (H, W, 3) float64, (H, W) bool.
-    """
-    height, width = disparity.shape
-    y, x = np.indices((height, width))
-    xr = x - disparity
-    # left neighbour of the sample position, kept so that x0 + 1 is a column
-    x0 = np.clip(np.floor(xr).astype(int), 0, width - 2)
-    t = np.clip(xr - x0, 0, 1)[..., None]
-    r = right.astype(np.float64)
-    return (1 - t) * r[y, x0] + t * r[y, x0 + 1], (xr >= 0) & (xr <= width - 1)
 
 
 def _erode(mask, radius=2):
@@ -305,14 +288,14 @@ def test_warp_consistency_after_scale_and_stretch():
         params = aug.draw((160, 240), _rng(seed))
         s_y, s_x = params.scale
         out = aug.apply(pair, params)
-        warped, inside = _sample_right(out["right"], out["disparity"])
+        warped, inside = sample_right(out["right"], out["disparity"])
         mask = _erode(out["valid"]) & inside
         assert mask.mean() > 0.5
         error = np.abs(warped - out["left"])[mask].mean()
         assert error < 1.0, (seed, params.scale, error)
         for wrong_factor in (1.0 / s_x, s_y / s_x):
             if abs(wrong_factor - 1.0) > 0.1:
-                wrong, inside_wrong = _sample_right(out["right"], out["disparity"] * wrong_factor)
+                wrong, inside_wrong = sample_right(out["right"], out["disparity"] * wrong_factor)
                 assert np.abs(wrong - out["left"])[mask & inside_wrong].mean() > 2 * error, (seed, wrong_factor)
                 checked += 1
     assert checked >= 5

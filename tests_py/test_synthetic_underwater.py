@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 import pytest
-from helpers import require
+from helpers import require, sample_right
 from mipnet.data import SyntheticStereo, make_pair, synthetic_underwater_pairs
 from mipnet.metrics import evaluate
 from mipnet.underwater import (
@@ -26,17 +26,6 @@ def pair():
     return make_pair(96, 128, seed=5)
 
 
-def _sample_right(right, disparity):
-    """Right image sampled at (x - d, y) with linear interpolation along x."""
-    height, width = disparity.shape
-    y, x = np.indices((height, width))
-    xr = x - disparity
-    x0 = np.clip(np.floor(xr).astype(int), 0, width - 2)
-    t = np.clip(xr - x0, 0, 1)[..., None]
-    r = right.astype(np.float64)
-    return (1 - t) * r[y, x0] + t * r[y, x0 + 1]
-
-
 # ------------------------------------------------------------------------------ synthetic
 
 
@@ -54,12 +43,12 @@ def test_make_pair_types_and_determinism(pair):
 
 
 def test_make_pair_disparity_is_exact_photometrically(pair):
-    error = np.abs(_sample_right(pair["right"], pair["disparity"]) - pair["left"]).mean(axis=2)
+    error = np.abs(sample_right(pair["right"], pair["disparity"])[0] - pair["left"]).mean(axis=2)
     valid = pair["valid"]
     assert error[valid].mean() < 2.0  # grey levels, linear interpolation of a smooth texture
     assert np.percentile(error[valid], 95) < 5.0
     # shifting the disparity by 2 px must make the match clearly worse
-    shifted = np.abs(_sample_right(pair["right"], pair["disparity"] + 2) - pair["left"]).mean(axis=2)
+    shifted = np.abs(sample_right(pair["right"], pair["disparity"] + 2)[0] - pair["left"]).mean(axis=2)
     assert shifted[valid].mean() > 3 * error[valid].mean()
 
 
