@@ -204,7 +204,7 @@ impl<E: Float> Plan<E> {
     /// micro-kernels of `isa`, the block sizes non-zero.
     pub fn custom(isa: Isa, mr: usize, nr: usize, kc: usize, mc: usize, nc: usize) -> Result<Plan<E>> {
         let lanes = lanes::<E>(isa);
-        let kernel = (nr % lanes == 0 && mr * nr * std::mem::size_of::<E>() <= TILE_BYTES && mr <= MAX_MR)
+        let kernel = (nr.is_multiple_of(lanes) && mr * nr * std::mem::size_of::<E>() <= TILE_BYTES && mr <= MAX_MR)
             .then(|| (E::gemm_kernels().pick)(isa, mr, nr / lanes))
             .flatten();
         match kernel {

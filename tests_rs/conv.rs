@@ -363,7 +363,7 @@ fn isa_case(isa: Isa, (name, xs, ws, stride, padding): Case, seed: u64) {
     let cfg = Conv2dCfg::new(stride, padding);
     let mut rng = Rng::new(seed);
     let (x, w, b) = inputs(&mut rng, &xs, &ws);
-    let g = rng.array(&conv_ref(&x, &w, None, &cfg).shape().to_vec(), -1.0, 1.0);
+    let g = rng.array(conv_ref(&x, &w, None, &cfg).shape(), -1.0, 1.0);
     let f32v = |a: &ArrayD<f64>| a.mapv(|v| v as f32);
     let (x32, w32, b32, g32) = (f32v(&x), f32v(&w), f32v(&b), f32v(&g));
     let y = conv2d_fwd_ex(x32.view(), w32.view(), Some(b32.view()), &cfg, false, plan).unwrap().into_dyn().mapv(f64::from);

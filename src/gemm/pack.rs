@@ -23,6 +23,7 @@ pub(crate) enum SourceA<'a, E> {
 pub(crate) trait PackB<E>: Sync {
     /// Packs columns `j0..j0 + nc` over depth `p0..p0 + kc` into `dst` row-major with row stride
     /// `ldb` >= nc rounded up to NR: `dst[kk·ldb + j]` = B(p0 + kk, j0 + j), 0 for nc <= j < ldb.
+    #[allow(clippy::too_many_arguments)]
     fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize);
 }
 
@@ -106,7 +107,7 @@ impl<E: Float> Prepacked<E> {
     /// The packed data, after checking it was packed for `plan`'s MR and KC and for depth k, and
     /// that `row0` starts a panel.
     pub(crate) fn data(&self, plan: &Plan<E>, k: usize, row0: usize) -> Option<*const E> {
-        let fits = plan.mr == self.mr && plan.kc == self.kc && k == self.k && row0 % self.mr == 0 && row0 <= self.mpad;
+        let fits = plan.mr == self.mr && plan.kc == self.kc && k == self.k && row0.is_multiple_of(self.mr) && row0 <= self.mpad;
         fits.then_some(self.data.as_ptr())
     }
 }
