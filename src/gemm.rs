@@ -204,7 +204,7 @@ impl<E: Float> Plan<E> {
     /// micro-kernels of `isa`, the block sizes non-zero.
     pub fn custom(isa: Isa, mr: usize, nr: usize, kc: usize, mc: usize, nc: usize) -> Result<Plan<E>> {
         let lanes = lanes::<E>(isa);
-        let kernel = (nr % lanes == 0 && mr * nr * std::mem::size_of::<E>() <= TILE_BYTES && mr <= MAX_MR)
+        let kernel = (nr.is_multiple_of(lanes) && mr * nr * std::mem::size_of::<E>() <= TILE_BYTES && mr <= MAX_MR)
             .then(|| (E::gemm_kernels().pick)(isa, mr, nr / lanes))
             .flatten();
         match kernel {
@@ -292,11 +292,11 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
     let (mr, nr, es) = (plan.mr, plan.nr, std::mem::size_of::<E>());
     // rows of A packed at a time: MC' = MC·KC / K whole panels (all rows when prepacked)
     let chunk = match a {
-        SourceA::Packed(_) => m,
+        SourceA::Rows(..) => m,
         SourceA::Strided(_) => (plan.mc * plan.kc / k.max(1) / mr * mr).max(mr).min(m),
     };
     let a_len = match a {
-        SourceA::Packed(_) => 0,
+        SourceA::Rows(..) => 0,
         SourceA::Strided(_) => chunk.div_ceil(mr) * mr * k.max(1),
     };
     // equal K blocks of kcb and column blocks of ncb (the chains do not depend on them)
@@ -306,12 +306,13 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
         let (pa, pb) = (pa.cast::<E>(), pb.cast::<E>());
         for ic in (0..m).step_by(chunk) {
             let mc = chunk.min(m - ic);
-            let (apack, mpad) = match a {
-                SourceA::Packed(p) => (p.data(plan).expect("gemm: A prepacked for another plan"), p.mpad),
+            // the packed rows, their count rounded up to MR, and the first row of this product in them
+            let (apack, mpad, row0) = match a {
+                SourceA::Rows(p, row0) => (p.data(plan, k, row0).expect("gemm: A prepacked for another plan or depth"), p.mpad, row0),
                 SourceA::Strided(s) => {
                     // SAFETY: `pa` has room for the chunk's panels over all of K.
                     unsafe { s.pack_rows(plan, ic, mc, pa) };
-                    (pa.cast_const(), mc.div_ceil(mr) * mr)
+                    (pa.cast_const(), mc.div_ceil(mr) * mr, 0)
                 }
             };
             for jc in (0..n).step_by(ncb) {
@@ -325,8 +326,8 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                     let ldb = nc.div_ceil(nr) * nr;
                     b.pack(plan, p0, kc, jc, nc, pb, ldb);
                     for ir in (0..mc).step_by(mr) {
-                        // A micro-panel of rows ic + ir..: K block p0 at p0·mpad, panel ir / MR of kc·MR
-                        let ap = apack.wrapping_add(p0 * mpad + ir * kc);
+                        // A micro-panel of packed rows row0 + ir..: K block p0 at p0·mpad, its row r at r·kc
+                        let ap = apack.wrapping_add(p0 * mpad + (row0 + ir) * kc);
                         let rows = mr.min(mc - ir);
                         let init = match block_init {
                             // bias of rows ic + ir..

@@ -4,7 +4,7 @@
 mod common;
 
 use _core::gemm::Isa;
-use _core::ops::conv::{conv2d_bwd, conv2d_bwd_ex, conv2d_fwd, conv2d_fwd_ex, Conv2dCfg, Conv2dNeed};
+use _core::ops::conv::{conv2d_bwd, conv2d_bwd_ex, conv2d_fwd, conv2d_fwd_ex, Conv2dCfg, Conv2dNeed, Conv2dRun, Winograd};
 use common::{dot, gradcheck, max_abs_diff, Rng};
 use ndarray::{ArrayD, Ix4, IxDyn};
 
@@ -88,9 +88,16 @@ fn conv2d_fwd_f32_matches_f64_direct_sum() {
     let cfg = Conv2dCfg::new(stride, padding);
     let (x, w, b) = inputs(&mut rng, &xs, &ws);
     let (x32, w32, b32) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
-    let y = conv2d_fwd(x32.view(), w32.view(), Some(b32.view()), &cfg).unwrap().into_dyn().mapv(f64::from);
-    let err = max_abs_diff(&y, &conv_ref(&x, &w, Some(&b), &cfg));
-    assert!(err < 1e-4, "{name} f32: max abs err {err}");
+    let want = conv_ref(&x, &w, Some(&b), &cfg);
+    // the direct convolution as before (the default here: too few tiles for Winograd), and
+    // Winograd, which rounds its transforms too: measured 2.2e-4 here (outputs up to ~50,
+    // unscaled weights), bound 5e-4
+    for (winograd, bound) in [(Winograd::Off, 1e-4), (Winograd::On, 5e-4)] {
+        let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd };
+        let y = conv2d_fwd_ex(x32.view(), w32.view(), Some(b32.view()), &cfg, false, run).unwrap().into_dyn().mapv(f64::from);
+        let err = max_abs_diff(&y, &want);
+        assert!(err < bound, "{name} f32 {winograd:?}: max abs err {err}");
+    }
 }
 
 #[test]
@@ -351,12 +358,12 @@ fn conv2d_pixel_major_weight_grad_for_strides_and_separable_kernels_gradcheck_f6
 /// f32 forward and gradients of `case` on one ISA path against the f64 direct computation.
 fn isa_case(isa: Isa, (name, xs, ws, stride, padding): Case, seed: u64) {
     use _core::gemm::Plan;
-    let plan = Plan::<f32>::for_isa(isa).unwrap();
-    let plan64 = Plan::<f64>::for_isa(isa).unwrap();
+    let plan = Conv2dRun { plan: Plan::<f32>::for_isa(isa).unwrap(), winograd: Winograd::Off };
+    let plan64 = Conv2dRun { plan: Plan::<f64>::for_isa(isa).unwrap(), winograd: Winograd::Off };
     let cfg = Conv2dCfg::new(stride, padding);
     let mut rng = Rng::new(seed);
     let (x, w, b) = inputs(&mut rng, &xs, &ws);
-    let g = rng.array(&conv_ref(&x, &w, None, &cfg).shape().to_vec(), -1.0, 1.0);
+    let g = rng.array(conv_ref(&x, &w, None, &cfg).shape(), -1.0, 1.0);
     let f32v = |a: &ArrayD<f64>| a.mapv(|v| v as f32);
     let (x32, w32, b32, g32) = (f32v(&x), f32v(&w), f32v(&b), f32v(&g));
     let y = conv2d_fwd_ex(x32.view(), w32.view(), Some(b32.view()), &cfg, false, plan).unwrap().into_dyn().mapv(f64::from);
@@ -395,8 +402,100 @@ fn conv2d_fused_relu_equals_relu_of_conv_bitwise() {
         let cfg = Conv2dCfg::new(stride, padding);
         let (x, w, b) = inputs(&mut rng, &xs, &ws);
         let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
-        let plain = conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap().mapv(|v| v.max(0.0));
-        let fused = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, true, Plan::selected()).unwrap();
-        assert_eq!(plain, fused, "{name}");
+        for winograd in [Winograd::Off, Winograd::On] {
+            let run = Conv2dRun { plan: Plan::selected(), winograd };
+            let plain = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, false, run).unwrap().mapv(|v| v.max(0.0));
+            let fused = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, true, run).unwrap();
+            assert_eq!(plain, fused, "{name} {winograd:?}");
+        }
+    }
+}
+
+/// 3x3 stride-1 geometries for Winograd: paddings 0, 1, 2 and mixed, sizes that leave partial
+/// 4 x 4 tiles, and one with many tiles and channels.
+const WINOGRAD_CASES: &[Case] = &[
+    ("3x3_p1_odd", [2, 3, 9, 7], [4, 3, 3, 3], [1, 1], [1, 1]),
+    ("3x3_p0", [1, 2, 10, 13], [3, 2, 3, 3], [1, 1], [0, 0]),
+    ("3x3_p2", [1, 2, 5, 6], [3, 2, 3, 3], [1, 1], [2, 2]),
+    ("3x3_p0x1", [2, 3, 7, 8], [4, 3, 3, 3], [1, 1], [0, 1]),
+    ("3x3_p1_64ch", [2, 64, 29, 35], [24, 64, 3, 3], [1, 1], [1, 1]),
+];
+
+#[test]
+fn conv2d_winograd_f64_matches_direct_sum() {
+    // in f64 the transforms are exact up to rounding: the algorithm itself is checked
+    let mut rng = Rng::new(60);
+    let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::selected(), winograd: Winograd::On };
+    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES {
+        let cfg = Conv2dCfg::new(stride, padding);
+        let (x, w, b) = inputs(&mut rng, &xs, &ws);
+        for relu in [false, true] {
+            let y = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, relu, run).unwrap().into_dyn();
+            let want = conv_ref(&x, &w, Some(&b), &cfg).mapv(|v| if relu { v.max(0.0) } else { v });
+            let err = max_abs_diff(&y, &want);
+            assert!(err < 1e-11, "{name} relu={relu}: max abs err {err}");
+        }
+    }
+    // dX of a stride-1 3x3 conv is a Winograd forward too
+    gradcheck_winograd("3x3 p1 winograd dx", [2, 4, 7, 9], [5, 4, 3, 3], Conv2dCfg::new([1, 1], [1, 1]), 61);
+}
+
+/// dx of one case with Winograd forced, against finite differences of the direct forward.
+fn gradcheck_winograd(name: &str, xs: [usize; 4], ws: [usize; 4], cfg: Conv2dCfg, seed: u64) {
+    let mut rng = Rng::new(seed);
+    let (x, w, b) = inputs(&mut rng, &xs, &ws);
+    let y = conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap();
+    let g = rng.array(y.shape(), -1.0, 1.0);
+    let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::selected(), winograd: Winograd::On };
+    let grads = conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, run).unwrap();
+    let loss = |xp: &ArrayD<f64>| dot(&conv2d_fwd(xp.view(), w.view(), Some(b.view()), &cfg).unwrap().into_dyn(), &g);
+    gradcheck(name, &x, &grads.x.unwrap().into_dyn(), loss);
+}
+
+#[test]
+fn conv2d_winograd_f32_error_against_f64_is_small() {
+    // the f32 rounding of the transforms: reported, and bounded relative to the output scale
+    let mut rng = Rng::new(62);
+    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES {
+        let cfg = Conv2dCfg::new(stride, padding);
+        let (x, w, b) = inputs(&mut rng, &xs, &ws);
+        // weights of a trained layer's scale (1 / sqrt(fan-in)), inputs in [-1, 1]
+        let w = w.mapv(|v| v / ((ws[1] * 9) as f64).sqrt());
+        let want = conv_ref(&x, &w, Some(&b), &cfg);
+        let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let (x32, w32, b32) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
+        let mut errs = vec![];
+        for winograd in [Winograd::Off, Winograd::On] {
+            let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd };
+            let y = conv2d_fwd_ex(x32.view(), w32.view(), Some(b32.view()), &cfg, false, run).unwrap().into_dyn();
+            errs.push(max_abs_diff(&y.mapv(f64::from), &want) / scale);
+        }
+        eprintln!("{name}: max error / max |y|: direct {:.1e}, winograd {:.1e}", errs[0], errs[1]);
+        assert!(errs[1] < 2e-5, "{name}: winograd relative error {:.2e}", errs[1]);
+    }
+}
+
+#[test]
+fn conv2d_winograd_results_do_not_depend_on_the_thread_count() {
+    // the task split (bands, output-channel ranges) follows the threads; every output does not
+    let mut rng = Rng::new(63);
+    let (_, xs, ws, stride, padding) = WINOGRAD_CASES[WINOGRAD_CASES.len() - 1];
+    let cfg = Conv2dCfg::new(stride, padding);
+    let (x, w, b) = inputs(&mut rng, &xs, &ws);
+    let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
+    let g = rng.array(&[xs[0], ws[0], xs[2], xs[3]], -1.0, 1.0).mapv(|v| v as f32);
+    let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd: Winograd::On };
+    let at = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let y = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, true, run).unwrap();
+            (y, conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, run).unwrap().x)
+        })
+    };
+    let (y1, dx1) = at(1);
+    for threads in [2, 3, 7] {
+        let (y, dx) = at(threads);
+        assert_eq!(y1, y, "forward, {threads} threads");
+        assert_eq!(dx1, dx, "dx, {threads} threads");
     }
 }

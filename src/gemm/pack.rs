@@ -15,14 +15,15 @@ use crate::Float;
 pub(crate) enum SourceA<'a, E> {
     /// Packed by the GEMM, MC rows at a time.
     Strided(&'a Strided<E>),
-    /// Packed once by the caller for this plan.
-    Packed(&'a Prepacked<E>),
+    /// Packed once by the caller for this plan: its rows from the second field on (a multiple of MR).
+    Rows(&'a Prepacked<E>, usize),
 }
 
 /// A source of the B operand (k x n, loaded as vectors along columns).
 pub(crate) trait PackB<E>: Sync {
     /// Packs columns `j0..j0 + nc` over depth `p0..p0 + kc` into `dst` row-major with row stride
     /// `ldb` >= nc rounded up to NR: `dst[kk·ldb + j]` = B(p0 + kk, j0 + j), 0 for nc <= j < ldb.
+    #[allow(clippy::too_many_arguments)]
     fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize);
 }
 
@@ -89,6 +90,8 @@ pub(crate) struct Prepacked<E> {
     pub(crate) mpad: usize,
     mr: usize,
     kc: usize,
+    /// Depth of A.
+    k: usize,
 }
 
 impl<E: Float> Prepacked<E> {
@@ -98,12 +101,14 @@ impl<E: Float> Prepacked<E> {
         let mut data = vec![E::zero(); mpad * a.cols.max(1)];
         // SAFETY: `data` has room for mpad·max(k, 1) elements.
         unsafe { a.pack_rows(plan, 0, a.rows, data.as_mut_ptr()) };
-        Prepacked { data, mpad, mr: plan.mr, kc: plan.kc }
+        Prepacked { data, mpad, mr: plan.mr, kc: plan.kc, k: a.cols }
     }
 
-    /// The packed data, after checking it was packed for `plan`'s MR and KC.
-    pub(crate) fn data(&self, plan: &Plan<E>) -> Option<*const E> {
-        (plan.mr == self.mr && plan.kc == self.kc).then_some(self.data.as_ptr())
+    /// The packed data, after checking it was packed for `plan`'s MR and KC and for depth k, and
+    /// that `row0` starts a panel.
+    pub(crate) fn data(&self, plan: &Plan<E>, k: usize, row0: usize) -> Option<*const E> {
+        let fits = plan.mr == self.mr && plan.kc == self.kc && k == self.k && row0.is_multiple_of(self.mr) && row0 <= self.mpad;
+        fits.then_some(self.data.as_ptr())
     }
 }
 

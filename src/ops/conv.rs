@@ -32,6 +32,8 @@ use std::cell::RefCell;
 use std::ops::Range;
 use std::thread::LocalKey;
 
+mod winograd;
+
 const OP: &str = "conv2d";
 /// Upper bound of one thread's im2col / col2im buffer.
 const SCRATCH_BYTES: usize = 4 << 20;
@@ -87,6 +89,44 @@ impl Conv2dCfg {
         }
         // o = (padded − k) / s + 1
         Ok(((hp - kh) / sh + 1, (wp - kw) / sw + 1))
+    }
+}
+
+/// Whether stride-1 3x3 convolutions (forward, and the dX that is a forward) use Winograd F(4x4, 3x3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Winograd {
+    /// For f32 where it pays (enough channels and tiles); f64 (the gradient checks' type) stays
+    /// on the direct convolution.
+    Auto,
+    /// Never: the direct convolution.
+    Off,
+    /// Whenever the geometry allows, f64 and small convolutions included (to check the transforms).
+    On,
+}
+
+/// How a convolution runs: the GEMM plan (the ISA path) and the Winograd choice.
+#[derive(Clone, Copy, Debug)]
+pub struct Conv2dRun<'a, F> {
+    pub plan: &'a Plan<F>,
+    pub winograd: Winograd,
+}
+
+impl<F: Float> Conv2dRun<'static, F> {
+    /// The selected plan (`MIPNET_ISA`, else the widest ISA) and `Winograd::Auto`.
+    pub fn selected() -> Self {
+        Conv2dRun { plan: Plan::selected(), winograd: Winograd::Auto }
+    }
+}
+
+impl<F: Float> Conv2dRun<'_, F> {
+    /// Whether this run takes the Winograd path for geometry `g`.
+    fn winograd_for(&self, g: &Geom) -> bool {
+        let f32 = std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>();
+        winograd::applies(g) && match self.winograd {
+            Winograd::Auto => f32 && winograd::pays(g),
+            Winograd::Off => false,
+            Winograd::On => true,
+        }
     }
 }
 
@@ -504,17 +544,17 @@ impl<'a, F: Float> Operands<'a, F> {
 ///
 /// Torch: `F.conv2d(x, w, b, stride=cfg.stride, padding=cfg.padding)`.
 pub fn conv2d_fwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg) -> Result<Array4<F>> {
-    conv2d_fwd_ex(x, w, b, cfg, false, Plan::selected())
+    conv2d_fwd_ex(x, w, b, cfg, false, Conv2dRun::selected())
 }
 
-/// [`conv2d_fwd`] with the ReLU fused into the GEMM's epilogue when `relu` (y = max(conv + b, 0),
-/// as `F.relu(F.conv2d(..))`), on an explicit GEMM plan (any ISA path).
+/// [`conv2d_fwd`] with the ReLU fused into the epilogue when `relu` (y = max(conv + b, 0), as
+/// `F.relu(F.conv2d(..))`), on an explicit GEMM plan (any ISA path) and Winograd choice.
 pub fn conv2d_fwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<ArrayViewD<F>>, cfg: &Conv2dCfg, relu: bool,
-                               plan: &Plan<F>) -> Result<Array4<F>> {
+                               run: Conv2dRun<F>) -> Result<Array4<F>> {
     let b = b.map(|b| fixed::<_, Ix1>(OP, "bias", b)).transpose()?;
     let ops = Operands::new(x, w, b.as_ref().map(|b| b.shape()), cfg)?;
     let bias = b.as_ref().map(|b| b.to_vec());
-    forward(plan, &ops.g, ops.x()?, ops.wmat()?, bias.as_deref(), relu)
+    forward(run, &ops.g, ops.x()?, ops.wmat()?, bias.as_deref(), relu)
 }
 
 /// A standard-layout matrix as a GEMM operand.
@@ -534,8 +574,12 @@ fn forward_tile<F>(g: &Geom, plan: &Plan<F>) -> usize {
 /// `Y[n][:, tile]` = W · cols(`x[n]`)[:, tile] (+ b, then ReLU) by tasks (image, tile): one GEMM per
 /// task, W packed once for all of them, cols built straight into the GEMM's packed B panels (x
 /// itself for a pointwise conv).
-fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, bias: Option<&[F]>, relu: bool)
+fn forward<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, bias: Option<&[F]>, relu: bool)
                      -> Result<Array4<F>> {
+    let plan = run.plan;
+    if let (true, Some(w)) = (run.winograd_for(g), wm.as_slice()) {
+        return winograd::forward(plan, g, xs, w, bias, relu)?.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout);
+    }
     let wpack = Prepacked::new(plan, &strided(wm));
     let tile = forward_tile(g, plan);
     let mut y = Array3::<F>::zeros((g.n, g.cout, g.pix()));
@@ -552,7 +596,7 @@ fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, bias
             // Y[n][:, tile] = W · cols[:, tile] (+ b, ReLU)
             // SAFETY: C is this task's own block of y (Cout x tile, row stride H·W); A has Cout rows,
             // B the tile's columns, both over K; the bias has Cout values.
-            unsafe { gemm::run(plan, g.cout, px.len(), g.k(), SourceA::Packed(&wpack), b, c, rsc, 1, init, relu) };
+            unsafe { gemm::run(plan, g.cout, px.len(), g.k(), SourceA::Rows(&wpack, 0), b, c, rsc, 1, init, relu) };
         });
     });
     y.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout)
@@ -569,12 +613,13 @@ fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, bias
 /// Torch: `torch.autograd.grad(F.conv2d(x, w, b, stride, padding), (x, w, b), g)`.
 pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg,
                             need: Conv2dNeed) -> Result<Conv2dGrads<F>> {
-    conv2d_bwd_ex(x, w, g, cfg, need, Plan::selected())
+    conv2d_bwd_ex(x, w, g, cfg, need, Conv2dRun::selected())
 }
 
-/// [`conv2d_bwd`] on an explicit GEMM plan (any ISA path).
+/// [`conv2d_bwd`] on an explicit GEMM plan (any ISA path) and Winograd choice (for dX).
 pub fn conv2d_bwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg, need: Conv2dNeed,
-                               plan: &Plan<F>) -> Result<Conv2dGrads<F>> {
+                               run: Conv2dRun<F>) -> Result<Conv2dGrads<F>> {
+    let plan = run.plan;
     let gshape = g.shape().to_vec();
     let ops = Operands::new(x, w, None, cfg)?;
     let geo = ops.g;
@@ -585,7 +630,7 @@ pub fn conv2d_bwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD
     }
     let dy = g.as_standard_layout();
     let dys = dy.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: grad_output", &[]))?;
-    let dx = if need.x { Some(input_grad(plan, &geo, ops.wmat()?, dys)?) } else { None };
+    let dx = if need.x { Some(input_grad(run, &geo, ops.wmat()?, dys)?) } else { None };
     let dw = if need.w { Some(weight_grad(plan, &geo, ops.x()?, dys)?) } else { None };
     let db = need.b.then(|| bias_grad(&geo, dys));
     Ok(Conv2dGrads { x: dx, w: dw, b: db })
@@ -595,7 +640,7 @@ pub fn conv2d_bwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD
 /// [`forward`]: `dX[n, c, y, x]` = Σ_{o, ki, kj} `W[o, c, ki, kj]` · `dY[n, o, y − ki + ph, x − kj + pw]`
 /// = conv(dY, W'), W'`[c, o, ki', kj']` = `W[o, c, kh−1−ki', kw−1−kj']`, padding (kh−1−ph, kw−1−pw).
 /// None when that does not apply (stride > 1, or a pointwise conv, which is one plain GEMM).
-fn input_grad_as_conv<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Option<Result<Array4<F>>> {
+fn input_grad_as_conv<F: Float>(run: Conv2dRun<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Option<Result<Array4<F>>> {
     if g.stride != [1, 1] || g.pointwise() || g.pad[0] >= g.kh || g.pad[1] >= g.kw {
         return None;
     }
@@ -614,16 +659,17 @@ fn input_grad_as_conv<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy:
         }
     }
     let gt = Geom { n: g.n, cin: g.cout, h: g.ho, w: g.wo, cout: g.cin, kh: g.kh, kw: g.kw, ho: g.h, wo: g.w, stride: [1, 1], pad };
-    Some(forward(plan, &gt, dy, wt.view(), None, false))
+    Some(forward(run, &gt, dy, wt.view(), None, false))
 }
 
 /// dX, by tasks (image, input-channel chunk) that each own `dX[n, chunk]`. The tiles are taken in
 /// bands of about `BAND_BYTES` of dY, all tasks finishing one band before the next starts, so a
 /// band of dY is read from memory once and then from cache by every chunk.
-fn input_grad<F: Float>(plan: &Plan<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
-    if let Some(dx) = input_grad_as_conv(plan, g, wm, dy) {
+fn input_grad<F: Float>(run: Conv2dRun<F>, g: &Geom, wm: ArrayView2<F>, dy: &[F]) -> Result<Array4<F>> {
+    if let Some(dx) = input_grad_as_conv(run, g, wm, dy) {
         return dx;
     }
+    let plan = run.plan;
     let taps = g.kh * g.kw;
     let (plane, out_len) = (g.h * g.w, g.cout * g.pix());
     // Fewest chunks the row cap allows; more when the threads need more tasks (a multiple of them).

@@ -4,7 +4,6 @@ use numpy::IntoPyArray;
 use pyo3::prelude::*;
 
 use super::convert::{arr, float_dispatch, run_kernel};
-use crate::gemm::Plan;
 use crate::ops::conv::{self, Conv2dCfg, Conv2dNeed};
 use crate::{Error, Result};
 
@@ -21,6 +20,12 @@ fn cfg(stride: (i64, i64), padding: (i64, i64)) -> Result<Conv2dCfg> {
     Ok(Conv2dCfg::new(nonneg(stride, "stride")?, nonneg(padding, "padding")?))
 }
 
+/// The selected GEMM plan, with Winograd allowed (f32) or not.
+fn run<F: crate::Float>(winograd: bool) -> conv::Conv2dRun<'static, F> {
+    let w = if winograd { conv::Winograd::Auto } else { conv::Winograd::Off };
+    conv::Conv2dRun { winograd: w, ..conv::Conv2dRun::selected() }
+}
+
 /// y = conv2d(x, weight) + bias, zero padding; then max(y, 0) when `relu` (fused into the GEMM).
 ///
 /// Args:
@@ -30,18 +35,20 @@ fn cfg(stride: (i64, i64), padding: (i64, i64)) -> Result<Conv2dCfg> {
 ///     stride: (sh, sw), each >= 1.
 ///     padding: (ph, pw), each >= 0.
 ///     relu: apply ReLU to the output.
+///     winograd: let stride-1 3x3 float32 convolutions use Winograd F(4x4, 3x3) (False: direct).
 /// Returns:
 ///     y, (N, Cout, Ho, Wo).
 #[pyfunction]
-#[pyo3(signature = (x, weight, bias=None, stride=(1, 1), padding=(0, 0), relu=false))]
+#[pyo3(signature = (x, weight, bias=None, stride=(1, 1), padding=(0, 0), relu=false, winograd=true))]
+#[allow(clippy::too_many_arguments)]
 fn conv2d_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, PyAny>, bias: Option<&Bound<'py, PyAny>>,
-                   stride: (i64, i64), padding: (i64, i64), relu: bool) -> PyResult<Bound<'py, PyAny>> {
+                   stride: (i64, i64), padding: (i64, i64), relu: bool, winograd: bool) -> PyResult<Bound<'py, PyAny>> {
     let cfg = cfg(stride, padding)?;
     float_dispatch!(OP, "input", x, F => {
         let (x, w) = (arr::<F>(OP, "input", x)?, arr::<F>(OP, "weight", weight)?);
         let b = bias.map(|b| arr::<F>(OP, "bias", b)).transpose()?;
         let (xv, wv, bv) = (x.as_array(), w.as_array(), b.as_ref().map(|b| b.as_array()));
-        let y = run_kernel(py, || conv::conv2d_fwd_ex(xv, wv, bv, &cfg, relu, Plan::selected()))?;
+        let y = run_kernel(py, || conv::conv2d_fwd_ex(xv, wv, bv, &cfg, relu, run(winograd)))?;
         Ok(y.into_pyarray(py).into_any())
     })
 }
@@ -57,20 +64,22 @@ fn conv2d_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, P
 ///     need_x: compute dx.
 ///     need_w: compute dweight.
 ///     need_b: compute dbias.
+///     winograd: let dx of a stride-1 3x3 float32 convolution use Winograd (False: direct).
 /// Returns:
 ///     (dx or None, dweight or None, dbias or None).
 #[pyfunction]
-#[pyo3(signature = (x, weight, grad_output, stride=(1, 1), padding=(0, 0), need_x=true, need_w=true, need_b=true))]
+#[pyo3(signature = (x, weight, grad_output, stride=(1, 1), padding=(0, 0), need_x=true, need_w=true, need_b=true,
+                    winograd=true))]
 #[allow(clippy::too_many_arguments)]
 fn conv2d_bwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, PyAny>, grad_output: &Bound<'py, PyAny>,
-                   stride: (i64, i64), padding: (i64, i64), need_x: bool, need_w: bool, need_b: bool)
+                   stride: (i64, i64), padding: (i64, i64), need_x: bool, need_w: bool, need_b: bool, winograd: bool)
                    -> PyResult<Bound<'py, PyAny>> {
     let cfg = cfg(stride, padding)?;
     let need = Conv2dNeed { x: need_x, w: need_w, b: need_b };
     float_dispatch!(OP, "input", x, F => {
         let (x, w, g) = (arr::<F>(OP, "input", x)?, arr::<F>(OP, "weight", weight)?, arr::<F>(OP, "grad_output", grad_output)?);
         let (xv, wv, gv) = (x.as_array(), w.as_array(), g.as_array());
-        let grads = run_kernel(py, || conv::conv2d_bwd(xv, wv, gv, &cfg, need))?;
+        let grads = run_kernel(py, || conv::conv2d_bwd_ex(xv, wv, gv, &cfg, need, run(winograd)))?;
         Ok((grads.x.map(|a| a.into_pyarray(py)), grads.w.map(|a| a.into_pyarray(py)), grads.b.map(|a| a.into_pyarray(py)))
             .into_pyobject(py)?
             .into_any())
