@@ -70,7 +70,7 @@ def check_op(
     tol = {**TOL[dtype], **tol_override}
     grad_inputs = range(len(inputs)) if grad_inputs is None else grad_inputs
     arrays = [np.asarray(a, dtype=dtype) for a in inputs]
-    t_in = [torch.tensor(np.ascontiguousarray(a), requires_grad=i in grad_inputs) for i, a in enumerate(arrays)]
+    t_in = [torch.tensor(np.array(a, order="C"), requires_grad=i in grad_inputs) for i, a in enumerate(arrays)]
     m_in = [mipnet.tensor(a, requires_grad=i in grad_inputs) for i, a in enumerate(arrays)]
     t_out, m_out = torch_fn(*t_in), mipnet_fn(*m_in)
     assert_close(m_out.numpy(), t_out.detach().numpy(), tol["atol"], tol["rtol"], "forward")

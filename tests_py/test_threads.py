@@ -1,4 +1,5 @@
-"""Threads and processes: kernels release the GIL, the pool is resizable, and survives fork()."""
+"""Threads and processes: kernels release the GIL, the pool is resizable, one model serves several
+Python threads at once, and the pool survives fork()."""
 
 import ast
 import multiprocessing as mp
@@ -51,6 +52,36 @@ def test_set_num_threads_resizes_the_pool():
         mipnet.set_num_threads(before)
     with pytest.raises(RuntimeError, match="at least 1"):
         mipnet.set_num_threads(0)
+
+
+def test_one_model_called_from_two_threads_at_once_gives_the_serial_results():
+    """Two Python threads run the same eval model on different pairs concurrently (the kernels release
+    the GIL, so the passes overlap); each result is bitwise the serial one."""
+    mipnet.manual_seed(0)
+    model = mipnet.MIPNet().eval()
+    rng = np.random.default_rng(0)
+    lefts = [rng.uniform(0, 255, (48, 64, 3)).astype(np.float32) for _ in range(2)]
+    pairs = [(left, np.roll(left, -2 - i, axis=1)) for i, left in enumerate(lefts)]
+    serial = [model(left, right, iters=(2, 2)) for left, right in pairs]
+    results, errors, start = [None, None], [], threading.Barrier(2)
+
+    def worker(i):
+        try:
+            start.wait()
+            for _ in range(2):
+                results[i] = model(*pairs[i], iters=(2, 2))
+                assert results[i].tobytes() == serial[i].tobytes(), f"thread {i}: differs from the serial result"
+        except BaseException as e:  # reported in the main thread
+            errors.append(e)
+
+    threads = [threading.Thread(target=worker, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert not errors, errors
+    assert all(r is not None for r in results)
+    assert serial[0].tobytes() != serial[1].tobytes()  # the two threads really computed different pairs
 
 
 def _child(queue):

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import mipnet
+import mipnet.cli
 from mipnet.errors import ArgumentError, FormatError
 from mipnet.training import fit, resolve_config
 from mipnet.training.checkpoint import list_checkpoints, load_latest_checkpoint

@@ -1,16 +1,27 @@
-"""The ``mipnet`` command line: ``info``, ``infer``, ``eval``, ``train``. Also ``python -m mipnet``."""
+"""The ``mipnet`` command line: ``info``, ``infer``, ``eval``, ``train``. Also ``python -m mipnet``.
+
+Errors are handled once, in :func:`main`, for every subcommand: a user error (a missing, unreadable
+or corrupt file, images of different sizes, bad calibration or weights, a bad flag value, not enough
+memory) prints one line ``mipnet <command>: error: <what>`` and exits with status 2; ``--debug``
+(before or after the command) prints the traceback as well. A run over many pairs goes on past a
+pair that fails, lists the failures at the end and exits with status 1.
+"""
 
 from __future__ import annotations
 
 import argparse
+import errno
 import glob
 import os
 import sys
 import time
+import traceback
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
+
+from .errors import ArgumentError, MipnetError, ShapeError
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 EXAMPLE_LEFT, EXAMPLE_RIGHT = ASSETS / "example_left.png", ASSETS / "example_right.png"
@@ -18,18 +29,42 @@ UNTRAINED_SEED = 0
 
 
 def load_model(weights: str | None, quiet: bool = False):
-    """The model to run: the weights file given, else the default weights. No trained default weights
-    ship yet, so the default is the untrained network (seeded initialisation), and this says so."""
+    """The model to run: the weights file given, else the weights shipped with the package; an
+    installation without them falls back to the untrained network (seeded) and says so."""
     import mipnet
+    from . import pretrained
 
     if weights:
         return mipnet.load(weights).eval()
+    if pretrained.available():
+        return pretrained.load_pretrained()
     if not quiet:
-        print("WARNING: no trained MIPNet weights are available yet: this is the UNTRAINED network "
+        print("WARNING: this installation ships no trained MIPNet weights: this is the UNTRAINED network "
               f"(random initialisation, seed {UNTRAINED_SEED}); its disparities are not meaningful. "
               "Pass --weights FILE.safetensors to use trained weights.", file=sys.stderr)
     mipnet.manual_seed(UNTRAINED_SEED)
     return mipnet.MIPNet().eval()
+
+
+def describe_weights(weights: str | None) -> list[str]:
+    """Lines saying what a weights file (default: the shipped one) was trained on."""
+    from . import pretrained
+    from .weights import load_safetensors
+
+    if weights:
+        _, meta = load_safetensors(weights)
+        label = weights
+    elif pretrained.available():
+        meta, label = pretrained.pretrained_info(), f"shipped ({pretrained.PRETRAINED_PATH.name})"
+    else:
+        return ["weights: none shipped (untrained network)"]
+    lines = [f"weights: {label}"]
+    for key in ("trained", "step", "generator_version", "mipnet_version", "commands"):
+        if key in meta:
+            lines.append(f"  {key}: {meta[key]}")
+    if "validation" in meta:
+        lines.append(f"  validation: {meta['validation']}")
+    return lines
 
 
 class Progress:
@@ -53,30 +88,113 @@ class Progress:
         sys.stderr.flush()
 
 
+#: What a user can cause (bad files, options, sizes, too little memory): one line, exit status 2.
+#: Anything else is a bug in mipnet and keeps its traceback.
+USER_ERRORS = (MipnetError, OSError, MemoryError)
+EXIT_USAGE, EXIT_SOME_FAILED = 2, 1
+
+
+def describe(error: BaseException) -> str:
+    """A user error as one line of text that names the file involved."""
+    if isinstance(error, OSError) and error.filename is not None:
+        text = f"{error.filename}: {error.strerror or error}"
+    elif isinstance(error, MemoryError) and not isinstance(error, MipnetError):
+        text = f"out of memory ({error or 'an allocation failed'})"
+    else:
+        text = str(error) or type(error).__name__
+    return " ".join(text.split())
+
+
+def naming(files: tuple[str, ...], error: BaseException) -> str:
+    """:func:`describe` of an error met on ``files``, prefixed with them unless it names one already."""
+    message = describe(error)
+    return message if any(f in message for f in files) else f"{' + '.join(files)}: {message}"
+
+
+class PairError(MipnetError):
+    """A user error met on one pair of images, re-raised with a message that names the pair's files."""
+
+
+class Failures:
+    """The pairs that failed in a run over many: each reported when it happens, all listed at the end."""
+
+    def __init__(self, command: str, debug: bool):
+        self.command, self.debug, self.items = command, debug, {}
+
+    def attempt(self, files: tuple[str, ...], fn: Callable, *args):
+        """``fn(*args)``, or None after recording the pair of ``files`` as failed if it raises a user error."""
+        try:
+            return fn(*args)
+        except USER_ERRORS as error:
+            self.add(files, error)
+            return None
+
+    def add(self, files: tuple[str, ...], error: BaseException) -> None:
+        if self.debug:
+            traceback.print_exc()
+        self.items[files] = naming(files, error)
+        print(f"{self.command}: skipped {self.items[files]}", file=sys.stderr)
+
+    def report(self, total: int) -> int:
+        """Lists the failures; the exit status (0 if none)."""
+        if not self.items:
+            return 0
+        print(f"{self.command}: {len(self.items)} of {total} pairs failed:", file=sys.stderr)
+        for message in self.items.values():
+            print(f"  {message}", file=sys.stderr)
+        return EXIT_SOME_FAILED
+
+
 def _expand(pattern: str) -> list[str]:
-    paths = sorted(glob.glob(pattern)) if any(c in pattern for c in "*?[") else [pattern]
-    missing = [p for p in paths if not os.path.isfile(p)]
-    if not paths or missing:
-        raise SystemExit(f"mipnet: no such file: {pattern if not paths else missing[0]}")
-    return paths
+    """The files a path or glob names, sorted; FileNotFoundError if there are none."""
+    if any(c in pattern for c in "*?["):
+        paths = sorted(p for p in glob.glob(pattern) if os.path.isfile(p))
+        if not paths:
+            raise FileNotFoundError(errno.ENOENT, "no file matches this pattern", pattern)
+        return paths
+    if not os.path.exists(pattern):
+        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), pattern)
+    if not os.path.isfile(pattern):
+        raise IsADirectoryError(errno.EISDIR, "not a file", pattern)
+    return [pattern]
+
+
+def read_pair(left_path: str, right_path: str) -> tuple[np.ndarray, np.ndarray]:
+    """The two images of a stereo pair as RGB uint8; ShapeError naming both files if their sizes differ
+    or are below the model's minimum."""
+    from . import io
+    from .model import MIN_SIZE
+
+    left, right = io.read_image(left_path), io.read_image(right_path)
+    (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
+    if (lh, lw) != (rh, rw):
+        raise ShapeError(f"{left_path} is {lh}x{lw} (HxW) but {right_path} is {rh}x{rw}: "
+                         "the two images of a pair must have one size")
+    if min(lh, lw) < MIN_SIZE:
+        raise ShapeError(f"{left_path} is {lh}x{lw} (HxW): MIPNet needs images of at least {MIN_SIZE}x{MIN_SIZE}")
+    return left, right
 
 
 def cmd_infer(args: argparse.Namespace) -> int:
     from . import geometry, io, viz
 
     if (args.left is None) != (args.right is None):
-        raise SystemExit("mipnet infer: give both -l/--left and -r/--right, or neither (bundled example pair)")
+        raise ArgumentError("give both -l/--left and -r/--right, or neither (bundled example pair)")
+    if args.vmin is not None and args.vmax is not None and not args.vmin < args.vmax:
+        raise ArgumentError(f"--vmin {args.vmin} must be below --vmax {args.vmax}")
     lefts = _expand(args.left) if args.left else [str(EXAMPLE_LEFT)]
     rights = _expand(args.right) if args.right else [str(EXAMPLE_RIGHT)]
     if len(lefts) != len(rights):
-        raise SystemExit(f"mipnet infer: {len(lefts)} left images but {len(rights)} right images")
+        raise ArgumentError(f"{len(lefts)} left images ({args.left}) but {len(rights)} right images ({args.right})")
     calib = io.read_calib(args.calib) if args.calib else None
+    # a single pair is checked before the model loads, so that its error is the only line printed
+    first = read_pair(lefts[0], rights[0]) if len(lefts) == 1 else None
     model = load_model(args.weights)
     out = Path(args.output_directory)
     out.mkdir(parents=True, exist_ok=True)
-    progress = Progress(len(lefts), "infer")
-    for lp, rp in zip(lefts, rights):
-        left, right = io.read_image(lp), io.read_image(rp)
+
+    def infer_pair(lp: str, rp: str, images: tuple | None = None) -> None:
+        left, right = images or read_pair(lp, rp)
         disp = model(left, right, iters=tuple(args.iters), seed=args.seed)
         stem = out / Path(lp).stem
         _write_npy(f"{stem}_disp.npy", disp)
@@ -87,9 +205,21 @@ def cmd_infer(args: argparse.Namespace) -> int:
             _write_npy(f"{stem}_depth.npy", depth)
             points, colors = geometry.depth_to_points(depth, calib, image=left)
             io.write_ply(f"{stem}_points.ply", points, colors)
+
+    if len(lefts) == 1:  # a single pair: its error is the command's error (status 2)
+        try:
+            infer_pair(lefts[0], rights[0], first)
+        except USER_ERRORS as error:
+            raise PairError(naming((lefts[0], rights[0]), error)) from error
+        print(f"wrote 1 disparity map to {out}/")
+        return 0
+    failures = Failures("mipnet infer", args.debug)
+    progress = Progress(len(lefts), "infer")
+    for lp, rp in zip(lefts, rights):
+        failures.attempt((lp, rp), infer_pair, lp, rp)
         progress.step(Path(lp).name)
-    print(f"wrote {len(lefts)} disparity map(s) to {out}/")
-    return 0
+    print(f"wrote {len(lefts) - len(failures.items)} disparity map(s) to {out}/")
+    return failures.report(len(lefts))
 
 
 def _write_npy(path: str, array: np.ndarray) -> None:
@@ -102,9 +232,11 @@ def _write_npy(path: str, array: np.ndarray) -> None:
 def cmd_info(args: argparse.Namespace) -> int:
     import mipnet
 
-    model = load_model(args.weights, quiet=True) if args.weights else mipnet.MIPNet()
+    if args.measure and not args.size:
+        raise ArgumentError("--measure needs --size H W")
+    model = load_model(args.weights, quiet=True)
     print(f"mipnet {mipnet.__version__}  threads={mipnet.get_num_threads()}  dtype={model.dtype}")
-    print(f"weights: {args.weights or 'none (untrained network)'}")
+    print("\n".join(describe_weights(args.weights)))
     print("config: " + ", ".join(f"{k}={v}" for k, v in vars(model.config).items()))
     counts: dict[str, int] = {}
     for name, p in model.named_parameters():
@@ -116,10 +248,25 @@ def cmd_info(args: argparse.Namespace) -> int:
     for key, n in counts.items():
         print(f"  {key:<{width}}  {n:>10,}")
     print(f"  {'total':<{width}}  {model.num_parameters():>10,}")
+    if args.size:
+        from . import memory
+
+        room = memory.available_memory()
+        print("memory (estimated" + (f"; available now {memory.format_bytes(room[0])}, {room[1]}):" if room else "):"))
+        for mode in ("eval", "train"):
+            needed = memory.estimate(*args.size, args.batch, mode, args.iters, model)
+            line = "  " + needed.describe()
+            if args.measure and room and needed.activations > room[0]:
+                line += "; not measured: more than is available"
+            elif args.measure:
+                measured = memory.measure_peak(*args.size, args.batch, mode, args.iters)
+                line += (f"; measured {memory.format_bytes(measured)} ({100 * (needed.total / measured - 1):+.0f}%, "
+                         "fresh process, default float32 model)")
+            print(line, flush=True)
     return 0
 
 
-DATASETS = ("synthetic", "synthetic-underwater", "sceneflow", "middlebury2014", "middeval3", "eth3d",
+DATASETS = ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater", "motorcycle", "sceneflow", "middlebury2014", "middeval3", "eth3d",
             "kitti2012", "kitti2015", "crestereo")
 
 
@@ -127,14 +274,17 @@ def open_dataset(args: argparse.Namespace):
     """The evaluation pairs named by ``--dataset`` (``--root`` for the on-disk sets)."""
     from . import data
 
-    if args.dataset in ("synthetic", "synthetic-underwater"):
+    if args.dataset in ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater"):
         h, w = args.size
-        preset = args.preset if args.dataset == "synthetic-underwater" else None
-        if args.dataset == "synthetic-underwater" and preset is None:
-            raise SystemExit("mipnet eval: --dataset synthetic-underwater needs --preset (clear, coastal, turbid, low_light)")
-        return data.SyntheticStereo(args.n, h, w, seed=args.seed, underwater=preset)
+        underwater = args.dataset.endswith("-underwater")
+        if underwater and args.preset is None:
+            raise ArgumentError(f"--dataset {args.dataset} needs --preset (clear, coastal, turbid, low_light, random)")
+        generator = data.SceneStereo if args.dataset.startswith("scenes") else data.SyntheticStereo
+        return generator(args.n, h, w, seed=args.seed, underwater=args.preset if underwater else None)
+    if args.dataset == "motorcycle":  # a real Middlebury pair bundled in scikit-image (evaluation only)
+        return data.RealPairs("motorcycle", underwater=args.preset, seed=args.seed)
     if not args.root:
-        raise SystemExit(f"mipnet eval: --dataset {args.dataset} needs --root DIR")
+        raise ArgumentError(f"--dataset {args.dataset} needs --root DIR")
     make = {
         "sceneflow": lambda: data.SceneFlow(args.root, split="TEST"),
         "middlebury2014": lambda: data.Middlebury2014(args.root),
@@ -148,12 +298,28 @@ def open_dataset(args: argparse.Namespace):
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from . import pretrained
     from .evaluation import evaluate_method, format_table, result_row, sgbm_rows
 
+    methods = set(args.methods.split(","))
+    if not methods or not methods <= {"mipnet", "sgbm"}:
+        raise ArgumentError(f"--methods {args.methods!r}: expected a comma-separated list of mipnet, sgbm")
     dataset = open_dataset(args)
     count = min(len(dataset), args.max_pairs) if args.max_pairs else len(dataset)
-    pairs = lambda: (dataset[i] for i in range(count))  # noqa: E731 - one fresh pass per method
-    methods = set(args.methods.split(","))
+    failures = Failures("mipnet eval", args.debug)
+
+    def pairs():
+        """One fresh pass per method over the pairs that can be read (the others are recorded)."""
+        for i in range(count):
+            pair = failures.attempt((f"pair {i}",), dataset.__getitem__, i)
+            if pair is not None:
+                yield pair
+
+    def on_error(name, error: Exception) -> None:
+        if not isinstance(error, USER_ERRORS):
+            raise error
+        failures.add((str(name),), error)
+
     rows = []
     if "mipnet" in methods:
         model = load_model(args.weights)
@@ -164,20 +330,74 @@ def cmd_eval(args: argparse.Namespace) -> int:
             progress.step("")
             return disp
 
-        rows.append(result_row("MIPNet" + ("" if args.weights else " (untrained)"), evaluate_method(pairs(), predict),
-                               args.aggregation))
+        trained = bool(args.weights) or pretrained.available()
+        rows.append(result_row("MIPNet" + ("" if trained else " (untrained)"),
+                               evaluate_method(pairs(), predict, on_error=on_error), args.aggregation))
     if "sgbm" in methods:
-        full, covered = sgbm_rows(pairs(), aggregation=args.aggregation)
+        full, covered = sgbm_rows(pairs(), aggregation=args.aggregation, on_error=on_error)
         rows += [{**full, "method": "SGBM (full coverage)"}, {**covered, "method": "SGBM (covered)"}]
-    name = args.dataset + (f" ({args.preset})" if args.dataset == "synthetic-underwater" else "")
+    name = args.dataset + (f" ({args.preset})" if args.preset else "")
     print(f"{name}: {count} pairs, {args.aggregation} over images; bad-x and d1 in percent, epe/a90/rms in px")
     print(format_table(rows))
-    return 0
+    return failures.report(count)
+
+
+class CommandLineError(Exception):
+    """A command line argparse rejects (unknown option, bad value); ``prog`` is ``mipnet <command>``."""
+
+    def __init__(self, prog: str, message: str):
+        super().__init__(message)
+        self.prog, self.message = prog, message
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the error handling of :func:`main`: a rejected command line raises
+    :class:`CommandLineError` (one line, no usage dump), and every (sub)command accepts ``--debug``.
+    Subparsers made with ``add_subparsers().add_parser`` are of this class too."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # SUPPRESS: a subcommand's default does not overwrite a --debug given before the subcommand
+        self.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                          help="on an error, print the Python traceback too")
+
+    def error(self, message: str):
+        raise CommandLineError(self.prog, message)
+
+
+def positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+class Iters(argparse.Action):
+    """``--iters N16 N4``: N16 >= 1 iterations at 1/16, N4 >= 0 at 1/4."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        n16, n4 = values
+        if n16 < 1 or n4 < 0:
+            parser.error(f"argument {option_string}: needs N16 >= 1 and N4 >= 0, got {n16} {n4}")
+        setattr(namespace, self.dest, (n16, n4))
+
+
+class ImageSize(argparse.Action):
+    """``--size H W``: an image size the model accepts (both sides >= MIN_SIZE)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from .model import MIN_SIZE
+
+        h, w = values
+        if min(h, w) < MIN_SIZE:
+            parser.error(f"argument {option_string}: {h}x{w} (HxW) is below the minimum {MIN_SIZE}x{MIN_SIZE}")
+        setattr(namespace, self.dest, (h, w))
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="mipnet", description="MIPNet stereo matching on the CPU (Rust engine).")
-    p.add_argument("--threads", type=int, default=None, help="kernel threads (default: all cores / MIPNET_NUM_THREADS)")
+    p = Parser(prog="mipnet", description="MIPNet stereo matching on the CPU (Rust engine).")
+    p.add_argument("--threads", type=positive_int, default=None,
+                   help="kernel threads (default: all cores / MIPNET_NUM_THREADS)")
     sub = p.add_subparsers(dest="command", required=True)
 
     inf = sub.add_parser("infer", help="disparity (and depth, point cloud) for stereo pairs")
@@ -185,29 +405,38 @@ def build_parser() -> argparse.ArgumentParser:
     inf.add_argument("-r", "--right", help="right image or glob, same order as --left")
     inf.add_argument("-o", "--output_directory", "--output-directory", default="mipnet_out")
     inf.add_argument("--weights", help="weights file (.safetensors written by MIPNet.save)")
-    inf.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
+    inf.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
     inf.add_argument("--calib", help="calib.txt (Middlebury/ETH3D) or K.txt: also write depth and a point cloud")
     inf.add_argument("--vmin", type=float, default=None, help="colour range (default: 1st-99th percentile)")
     inf.add_argument("--vmax", type=float, default=None)
     inf.add_argument("--seed", type=int, default=20, help="seed of the gamma initialisation (default 20)")
     inf.set_defaults(func=cmd_infer)
 
-    info = sub.add_parser("info", help="config, parameter counts per module, thread count")
+    info = sub.add_parser("info", help="config, parameter counts per module, thread count, memory estimates")
     info.add_argument("--weights", help="weights file to describe")
+    info.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), action=ImageSize,
+                      help="also print the peak memory of an eval forward and a training step at this image size")
+    info.add_argument("--batch", type=positive_int, default=1, help="image pairs per pass for --size (default 1)")
+    info.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
+    info.add_argument("--measure", action="store_true",
+                      help="with --size: also run each pass in a fresh process and print its measured peak memory")
     info.set_defaults(func=cmd_info)
 
     ev = sub.add_parser("eval", help="metrics of MIPNet and OpenCV SGBM on a dataset")
     ev.add_argument("--dataset", required=True, choices=DATASETS)
     ev.add_argument("--root", help="dataset root folder (official layout)")
     ev.add_argument("--weights", help="weights file (.safetensors written by MIPNet.save)")
-    ev.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
+    ev.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
     ev.add_argument("--methods", default="mipnet,sgbm", help="comma-separated: mipnet, sgbm")
-    ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light"), help="underwater preset")
-    ev.add_argument("--n", type=int, default=50, help="number of generated pairs (synthetic sets)")
-    ev.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"), help="generated pair size")
-    ev.add_argument("--seed", type=int, default=0, help="seed of the generated pairs")
+    ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light", "random"),
+                    help="underwater preset (random: water drawn around the presets per pair)")
+    ev.add_argument("--n", type=positive_int, default=50, help="number of generated pairs (synthetic sets)")
+    ev.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"), action=ImageSize,
+                    help="generated pair size")
+    ev.add_argument("--seed", type=int, default=1_000_000,
+                    help="pair seed of the first generated pair (default 1000000: held out from training)")
     ev.add_argument("--resolution", default="H", choices=("F", "H", "Q"), help="MiddEval3 resolution")
-    ev.add_argument("--max-pairs", type=int, default=None, help="evaluate only the first N pairs")
+    ev.add_argument("--max-pairs", type=positive_int, default=None, help="evaluate only the first N pairs")
     ev.add_argument("--aggregation", default="mean", choices=("mean", "pooled"),
                     help="mean of per-image metrics (ETH3D) or pooled over all pixels (KITTI)")
     ev.set_defaults(func=cmd_eval)
@@ -219,12 +448,30 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    if args.threads:
-        import mipnet
+    """Runs one ``mipnet`` command; its exit status: 0 done, 1 some pairs of a run failed (listed),
+    2 a user error (one line on stderr; ``--debug`` adds the traceback)."""
+    try:
+        args, unknown = build_parser().parse_known_args(argv)
+        if unknown:  # reported against the subcommand they were given to, not the top-level parser
+            raise CommandLineError(f"mipnet {args.command}", f"unrecognized arguments: {' '.join(unknown)}")
+    except CommandLineError as error:
+        print(f"{error.prog}: error: {error.message} (see {error.prog} --help)", file=sys.stderr)
+        return EXIT_USAGE
+    args.debug = debug = getattr(args, "debug", False)  # absent unless given (SUPPRESS default)
+    try:
+        if args.threads:
+            import mipnet
 
-        mipnet.set_num_threads(args.threads)
-    return args.func(args)
+            mipnet.set_num_threads(args.threads)
+        return args.func(args)
+    except USER_ERRORS as error:
+        if debug:
+            traceback.print_exc()
+        prefix = f"mipnet {args.command}: "
+        message = describe(error)
+        # messages that already name the command (raised for the command line) are not prefixed twice
+        print(prefix + "error: " + (message[len(prefix):] if message.startswith(prefix) else message), file=sys.stderr)
+        return EXIT_USAGE
 
 
 if __name__ == "__main__":

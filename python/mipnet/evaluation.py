@@ -41,8 +41,10 @@ def _predict(predict_fn: Callable, left, right) -> tuple[np.ndarray, np.ndarray]
     return disparity, pred_valid
 
 
-def _evaluate(pairs: Iterable[dict], predict_fn: Callable, coverages: Sequence[str]) -> dict:
-    """One pass over ``pairs``, scoring every requested coverage convention."""
+def _evaluate(pairs: Iterable[dict], predict_fn: Callable, coverages: Sequence[str],
+              on_error: Callable[[object, Exception], None] | None = None) -> dict:
+    """One pass over ``pairs``, scoring every requested coverage convention. A pair whose prediction
+    raises is skipped after ``on_error(name, error)`` returns (without ``on_error`` the error propagates)."""
     unknown = set(coverages) - set(COVERAGES)
     if unknown:
         raise ValueError(f"unknown coverage {sorted(unknown)}; expected {COVERAGES}")
@@ -50,15 +52,21 @@ def _evaluate(pairs: Iterable[dict], predict_fn: Callable, coverages: Sequence[s
     per_image: dict[str, list] = {c: [] for c in coverages}
     gt_pixels = covered_pixels = 0
     for index, pair in enumerate(pairs):
-        disparity, pred_valid = _predict(predict_fn, pair["left"], pair["right"])
+        meta = pair.get("meta")
+        name = meta.get("left") or index if isinstance(meta, dict) else index
+        try:
+            disparity, pred_valid = _predict(predict_fn, pair["left"], pair["right"])
+        except Exception as error:
+            if on_error is None:
+                raise
+            on_error(name, error)
+            continue
         gt = np.asarray(pair["disparity"])
         valid = np.asarray(pair["valid"], dtype=bool) & np.isfinite(gt) & (gt > 0)
         if disparity.shape != gt.shape:
             raise ShapeError(f"prediction {disparity.shape} and ground truth {gt.shape} of pair {index} differ")
         gt_pixels += int(valid.sum())
         covered_pixels += int((valid & pred_valid).sum())
-        meta = pair.get("meta")
-        name = meta.get("left") or index if isinstance(meta, dict) else index
         for coverage in coverages:
             if coverage == "full":
                 metrics = pooled[coverage].update(np.where(pred_valid, disparity, 0.0), gt, valid)
@@ -73,7 +81,8 @@ def _evaluate(pairs: Iterable[dict], predict_fn: Callable, coverages: Sequence[s
     }
 
 
-def evaluate_method(pairs: Iterable[dict], predict_fn: Callable, coverage: str = "full") -> dict:
+def evaluate_method(pairs: Iterable[dict], predict_fn: Callable, coverage: str = "full",
+                    on_error: Callable[[object, Exception], None] | None = None) -> dict:
     """Run ``predict_fn`` on every pair and score it.
 
     Parameters
@@ -84,6 +93,9 @@ def evaluate_method(pairs: Iterable[dict], predict_fn: Callable, coverage: str =
         ``(left, right) -> disparity`` or ``-> (disparity, pred_valid)``.
     coverage : str
         ``"full"`` (invalid predictions scored as 0) or ``"covered"`` (they are excluded).
+    on_error : callable, optional
+        ``(name, error)``, called when ``predict_fn`` raises on a pair; the pair is then skipped
+        unless it raises. Without it the error propagates.
 
     Returns
     -------
@@ -97,7 +109,7 @@ def evaluate_method(pairs: Iterable[dict], predict_fn: Callable, coverage: str =
     ------
     per pair: left, right (H, W, 3); disparity, valid and the prediction (H, W).
     """
-    return _evaluate(pairs, predict_fn, (coverage,))[coverage]
+    return _evaluate(pairs, predict_fn, (coverage,), on_error)[coverage]
 
 
 def result_row(method: str, result: dict, aggregation: str = "mean") -> dict:
@@ -113,7 +125,8 @@ def result_row(method: str, result: dict, aggregation: str = "mean") -> dict:
     return row
 
 
-def sgbm_rows(pairs: Iterable[dict], method: str = "SGBM", aggregation: str = "mean", **sgbm_options) -> list[dict]:
+def sgbm_rows(pairs: Iterable[dict], method: str = "SGBM", aggregation: str = "mean",
+              on_error: Callable[[object, Exception], None] | None = None, **sgbm_options) -> list[dict]:
     """Score OpenCV SGBM both ways in one pass: a "full coverage" row and a "covered" row.
 
     Parameters
@@ -124,6 +137,8 @@ def sgbm_rows(pairs: Iterable[dict], method: str = "SGBM", aggregation: str = "m
         Name prefix of the rows.
     aggregation : str
         ``"mean"`` or ``"pooled"`` (see :func:`result_row`).
+    on_error : callable, optional
+        As for :func:`evaluate_method`.
     **sgbm_options
         Passed to :func:`mipnet.baselines.sgbm`.
 
@@ -139,7 +154,7 @@ def sgbm_rows(pairs: Iterable[dict], method: str = "SGBM", aggregation: str = "m
     """
     from .baselines import sgbm
 
-    results = _evaluate(pairs, lambda left, right: sgbm(left, right, **sgbm_options), COVERAGES)
+    results = _evaluate(pairs, lambda left, right: sgbm(left, right, **sgbm_options), COVERAGES, on_error)
     return [
         result_row(f"{method} (full coverage)", results["full"], aggregation),
         result_row(f"{method} (covered)", results["covered"], aggregation),

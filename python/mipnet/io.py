@@ -2,15 +2,20 @@
 RGB images, Middlebury/ETH3D ``calib.txt`` and FoundationStereo ``K.txt`` calibrations, and binary PLY.
 
 Every reader raises :class:`mipnet.errors.FormatError` (naming the file) when a file is corrupt,
-truncated or not in the expected format; a missing file raises the usual ``FileNotFoundError``.
+truncated or not in the expected format; a file that cannot be opened raises the usual ``OSError``
+(``FileNotFoundError``, ``IsADirectoryError``, ``PermissionError``). A header claiming more data than
+the file holds is rejected before anything is allocated (PFM, ``.npy``; PNG against the most deflate
+can expand); any image, whatever its format, is limited to ``PIL.Image.MAX_IMAGE_PIXELS`` pixels.
 Every writer is atomic: the data goes to a temporary file in the target directory that is renamed
 onto the target only once it is complete.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
+import warnings
 from typing import Any
 
 import numpy as np
@@ -28,12 +33,17 @@ __all__ = [
     "read_image",
     "write_image",
     "read_calib",
+    "read_npy",
     "write_ply",
 ]
 
 _KITTI_SCALE = 256.0
 _CRESTEREO_SCALE = 32.0
 _UINT16_MAX = np.iinfo(np.uint16).max
+_HEADER_LINE_MAX = 256  # bytes: a PFM header line is a few characters; anything longer is not a PFM
+# Deflate expands at most 1032:1 (a 258-byte match per 2-bit code), so no PNG decodes to more than this
+# many bytes per byte of file.
+_DEFLATE_MAX_RATIO = 1032
 
 
 def _format_error(path, message: str) -> FormatError:
@@ -67,16 +77,21 @@ def read_pfm(path) -> np.ndarray:
     Raises
     ------
     FormatError
-        Bad magic, malformed header, zero scale, or fewer data bytes than the header promises.
+        Bad magic, malformed header, zero scale, or fewer data bytes than the header promises
+        (checked against the file size before the data is read).
     """
     with open(path, "rb") as f:
-        magic = f.readline().strip()
+        magic = f.readline(_HEADER_LINE_MAX).strip()
         if magic not in (b"Pf", b"PF"):
             raise _format_error(path, f"not a PFM file (magic {magic[:8]!r}, expected b'Pf' or b'PF')")
         channels = 3 if magic == b"PF" else 1
-        width, height = _parse_pfm_size(path, f.readline())
-        scale = _parse_pfm_scale(path, f.readline())
+        width, height = _parse_pfm_size(path, f.readline(_HEADER_LINE_MAX))
+        scale = _parse_pfm_scale(path, f.readline(_HEADER_LINE_MAX))
         count = width * height * channels
+        available = os.fstat(f.fileno()).st_size - f.tell()
+        if 4 * count > available:
+            raise _format_error(path, f"truncated PFM: the header claims {width}x{height}x{channels} floats "
+                                      f"({4 * count} bytes) but the file holds {available} data bytes")
         data = f.read(4 * count)
     if len(data) < 4 * count:
         raise _format_error(path, f"truncated PFM: {len(data)} data bytes, expected {4 * count}")
@@ -141,17 +156,46 @@ def write_pfm(path, array) -> None:
 
 
 def _open_image(path):
-    """Open and fully decode an image with Pillow, turning decoder failures into FormatError."""
+    """Open and fully decode an image with Pillow, turning decoder failures into FormatError.
+
+    Pillow reads from the file's bytes in memory, so a chunk length in the file that lies (a PNG
+    IDAT claiming 2 GB) cannot make it allocate more than the file holds; the size in the header is
+    checked before the pixels are decoded (see :func:`_check_image_size`)."""
+    from io import BytesIO
+
     from PIL import Image
 
+    with open(path, "rb") as f:
+        data = f.read()
     try:
-        image = Image.open(path)
-        image.load()
-    except (FileNotFoundError, IsADirectoryError, PermissionError):
+        # Pillow only warns between MAX_IMAGE_PIXELS and twice that; here such an image is an error too
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # Pillow's notes on skipped corrupt TIFF/EXIF tags
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            image = Image.open(BytesIO(data))
+            _check_image_size(path, image, len(data))
+            image.load()
+    except FormatError:
         raise
     except Exception as exc:  # Pillow raises OSError, ValueError, SyntaxError, EOFError, ...
-        raise _format_error(path, f"cannot decode image ({type(exc).__name__}: {exc})") from None
+        raise _format_error(path, f"cannot decode image ({type(exc).__name__}: {exc}; file of {len(data)} bytes)") from None
     return image
+
+
+def _check_image_size(path, image, file_size: int) -> None:
+    """FormatError if the header's size is beyond Pillow's decompression-bomb limit, or (PNG) larger
+    than deflate could expand the file to: even a 1-bit image needs ``1 + ceil(W / 8)`` bytes a row."""
+    from PIL import Image
+
+    width, height = image.size
+    if width * height > Image.MAX_IMAGE_PIXELS:
+        raise _format_error(path, f"image header claims {width}x{height} (WxH) = {width * height} pixels, "
+                                  f"more than the limit of {Image.MAX_IMAGE_PIXELS} (PIL.Image.MAX_IMAGE_PIXELS)")
+    if image.format == "PNG":
+        least = height * (1 + -(-width // 8))
+        if least > _DEFLATE_MAX_RATIO * file_size:
+            raise _format_error(path, f"PNG header claims {width}x{height} (WxH), at least {least} bytes of pixel data, "
+                                      f"more than a file of {file_size} bytes can hold")
 
 
 def _read_uint16_disparity(path, scale: float, kind: str) -> tuple[np.ndarray, np.ndarray]:
@@ -288,7 +332,12 @@ def read_image(path) -> np.ndarray:
         return np.repeat(gray.astype(np.uint8)[:, :, None], 3, axis=2)
     if image.mode == "F":
         raise _format_error(path, "floating-point images are not colour images (is this a depth map?)")
-    return np.ascontiguousarray(np.asarray(image.convert("RGB"), dtype=np.uint8))
+    try:
+        rgb = image.convert("RGB")
+    except (ValueError, OSError) as exc:  # e.g. Pillow has no LAB -> RGB conversion
+        raise _format_error(path, f"cannot convert a {image.mode} image of {image.size[0]}x{image.size[1]} (WxH) "
+                                  f"to RGB ({exc})") from None
+    return np.ascontiguousarray(np.asarray(rgb, dtype=np.uint8))
 
 
 def write_image(path, image, **save_options: Any) -> None:
@@ -365,13 +414,24 @@ def read_calib(path) -> dict:
     Raises
     ------
     FormatError
-        Missing keys, malformed numbers or matrices.
+        Missing keys, malformed numbers or matrices, non-finite values, a focal length or baseline
+        that is not positive, or a non-positive width, height or ndisp.
     """
     with open(path, encoding="utf-8", errors="replace") as f:
         text = f.read()
-    if "=" in text:
-        return _parse_middlebury_calib(path, text)
-    return _parse_k_txt(path, text)
+    calib = _parse_middlebury_calib(path, text) if "=" in text else _parse_k_txt(path, text)
+    _check_calib(path, calib)
+    return calib
+
+
+def _check_calib(path, calib: dict) -> None:
+    """FormatError unless every number is finite and fx, fy, baseline (and width, height, ndisp) are positive."""
+    for key, value in calib.items():
+        if isinstance(value, float) and not np.isfinite(value):
+            raise _format_error(path, f"calibration value {key}={value} is not finite")
+    for key in ("fx", "fy", "baseline", "width", "height", "ndisp"):
+        if key in calib and not calib[key] > 0:
+            raise _format_error(path, f"calibration value {key}={calib[key]} must be positive")
 
 
 def _parse_numbers(path, text: str, what: str) -> list[float]:
@@ -439,6 +499,66 @@ def _parse_k_txt(path, text: str) -> dict:
         raise _format_error(path, f"K.txt line 2 must hold one baseline value, got {len(baseline)}")
     return {"fx": k[0], "fy": k[4], "cx": k[2], "cy": k[5], "doffs": 0.0,
             "baseline": baseline[0], "baseline_unit": "m"}
+
+
+# ------------------------------------------------------------------------------------- NPY
+
+
+def read_npy(path) -> np.ndarray:
+    """Read a ``.npy`` array (no pickled objects).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file written by ``numpy.save``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The array, with the dtype and shape its header names.
+
+    Shapes
+    ------
+    as stored.
+
+    Raises
+    ------
+    FormatError
+        Not a ``.npy`` file, a malformed header, an object dtype, or fewer data bytes than the header
+        promises (checked against the file size before the data is read).
+    """
+    from tokenize import TokenError
+
+    from numpy.lib import format as npy
+
+    with open(path, "rb") as f:
+        try:
+            version = npy.read_magic(f)
+            if version not in ((1, 0), (2, 0)):
+                raise ValueError(f"unsupported .npy version {version[0]}.{version[1]} (1.0 and 2.0 are read)")
+            # the header length: 2 bytes (version 1.0) or 4 bytes (2.0), little-endian, after the magic
+            width = 2 if version == (1, 0) else 4
+            length = int.from_bytes(f.read(width), "little")
+            if length > os.fstat(f.fileno()).st_size - f.tell():
+                raise ValueError(f"header length {length} exceeds the file size")
+            f.seek(-width, os.SEEK_CUR)
+            read_header = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+            shape, fortran_order, dtype = read_header(f)
+        except (ValueError, EOFError, SyntaxError, TypeError, TokenError, RecursionError) as exc:
+            # numpy parses the header dict with tokenize and ast.literal_eval, which raise all of these
+            raise _format_error(path, f"not a valid .npy file ({type(exc).__name__}: {exc})") from None
+        if not isinstance(shape, tuple) or not all(isinstance(d, int) and d >= 0 for d in shape):
+            raise _format_error(path, f"the .npy header has an invalid shape {str(shape)[:60]}")
+        if dtype.hasobject:
+            raise _format_error(path, f"the .npy file holds Python objects (dtype {dtype}), which are not read")
+        count = math.prod(shape)
+        available = os.fstat(f.fileno()).st_size - f.tell()
+        if count * dtype.itemsize > available:
+            raise _format_error(path, f"truncated .npy: the header claims shape {list(shape)} of {dtype} "
+                                      f"({count * dtype.itemsize} bytes) but the file holds {available} data bytes")
+        data = np.frombuffer(f.read(count * dtype.itemsize), dtype=dtype, count=count)
+    order = "F" if fortran_order else "C"
+    return data.reshape(shape, order=order).copy(order="K")
 
 
 # ------------------------------------------------------------------------------------- PLY

@@ -18,6 +18,7 @@ from .autograd import checkpoint, is_grad_enabled, no_grad
 from .profiler import scope
 from .blocks import Encoder, UpdateBlock, ip_update_block, rls_update_block
 from .errors import ArgumentError, ShapeError
+from .memory import check_forward
 from .nn import BatchNorm2d, Module
 from .random import default_generator
 from .tensor import Tensor
@@ -115,6 +116,7 @@ class MIPNet(Module):
         if l.shape != r.shape:
             raise ShapeError(f"MIPNet: left and right images differ in shape: left={list(l.shape)}, right={list(r.shape)}")
         pad = _padding(l.shape[2], l.shape[3])
+        check_forward(self, l.shape, (n16, n4), self.training and is_grad_enabled())  # MemoryLimitError before OOM
         if self.training:
             preds = self._run(l, r, pad, n16, n4, seed, disp_init)
             return [_crop(p, pad, l.shape) for p in preds]
@@ -203,6 +205,14 @@ class MIPNet(Module):
         return Tensor(np.concatenate([-d0, np.zeros_like(d0)], axis=1).astype(dtype))
 
     # ---- weights ---------------------------------------------------------------------------------------
+    @classmethod
+    def pretrained(cls) -> "MIPNet":
+        """The eval-mode model with the weights shipped inside the package (``mipnet info`` says what
+        they were trained on; ``docs/training.md`` how)."""
+        from .pretrained import load_pretrained
+
+        return load_pretrained()
+
     def save(self, path: str, **metadata: str) -> None:
         """Writes the state dict to a safetensors file with the config in its metadata (atomic)."""
         from .weights import save_safetensors
@@ -213,13 +223,20 @@ class MIPNet(Module):
 
 def load(path: str, strict: bool = True) -> MIPNet:
     """A ``MIPNet`` built from the config stored in a safetensors file written by ``MIPNet.save``,
-    with its weights loaded."""
+    with its weights loaded. A file that is not such weights raises ``FormatError`` naming it."""
+    from .errors import FormatError
     from .weights import load_safetensors
 
     tensors, meta = load_safetensors(path)
-    config = json.loads(meta["config"]) if "config" in meta else {}
-    model = MIPNet(**config)
-    model.load_state_dict(tensors, strict=strict)
+    try:
+        config = json.loads(meta["config"]) if "config" in meta else {}
+        if not isinstance(config, dict):
+            raise TypeError(f"the config is a JSON {type(config).__name__}, not an object")
+        model = MIPNet(**config)
+        model.load_state_dict(tensors, strict=strict)
+    except (ValueError, TypeError, RuntimeError) as e:  # bad JSON, unknown or bad config keys, missing/odd weights
+        message = " ".join(str(e).split())
+        raise FormatError(f"{path}: not MIPNet weights ({message[:300]}{'...' if len(message) > 300 else ''})") from None
     return model
 
 

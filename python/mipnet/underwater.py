@@ -32,7 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["degrade", "WaterParams", "PRESETS", "JERLOV_KD", "srgb_to_linear", "linear_to_srgb"]
+from .errors import ArgumentError
+
+__all__ = ["degrade", "random_water", "WaterParams", "PRESETS", "JERLOV_KD", "srgb_to_linear", "linear_to_srgb"]
 
 # Jerlov diffuse attenuation K_d (1/m) at 650 nm (R), 550 nm (G), 450 nm (B).
 JERLOV_KD: dict[str, tuple[float, float, float]] = {
@@ -145,6 +147,88 @@ PRESETS: dict[str, WaterParams] = {
         full_well=300.0, read_noise=0.01, artificial_light=1.5, marine_snow=120.0, snow_brightness=1.0,
     ),
 }
+
+
+def random_water(rng: np.random.Generator, preset: str | None = None) -> WaterParams:
+    """Water drawn around a preset: the preset (``preset``, or one of :data:`PRESETS` drawn
+    uniformly), then every parameter jittered independently within a physically plausible range.
+
+    With p the base preset's value and logU(lo, hi) a log-uniform factor:
+
+    ==========================  =============================================================
+    water_type                  p's Jerlov class, or (probability 1/2) its neighbour in the
+                                order I, IA, IB, II, III, 1C, 3C, 5C, 7C, 9C
+    scattering                  p * logU(0.5, 2), within [0.005, 1.5] 1/m
+    backscatter_coef            p * logU(0.6, 1.7) * U(0.85, 1.15) per channel, within [0.01, 2] 1/m
+    veiling_light               p * U(0.7, 1.35) per channel, within [0.01, 0.9]
+    backscatter_strength        p * U(0.6, 1.4)
+    forward_scatter             p * logU(0.5, 2), at most 2.5 px/m
+    depth                       p * logU(0.5, 2), within [0.5, 40] m
+    gain                        p * logU(0.67, 1.5), within [0.05, 1.5]
+    full_well                   p * logU(0.5, 2), within [100, 5000] electrons
+    read_noise                  p * logU(0.5, 2), within [0.0005, 0.03]
+    artificial_light            p * U(0.6, 1.5) if p > 0; else U(0.2, 1) with probability 0.15
+                                (a dive light in daylight), otherwise 0
+    light_cone                  U(0.3, 0.8)
+    marine_snow                 p * logU(0.3, 3), at most 1000 per megapixel
+    snow_brightness             p * U(0.6, 1.3), within [0.1, 1.2]
+    baseline                    p * logU(0.5, 2) (0.06-0.24 m for the presets: sets the range
+                                that a disparity means, i.e. the water path)
+    fx, z_min, z_max            p
+    ==========================  =============================================================
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of every draw; the result is a deterministic function of its state and ``preset``.
+    preset : str, optional
+        Name in :data:`PRESETS`; None draws one.
+
+    Returns
+    -------
+    WaterParams
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise ArgumentError(f"random_water: rng must be a numpy.random.Generator, got {type(rng).__name__}")
+    names = list(PRESETS)
+    pick = names[int(rng.integers(len(names)))]  # drawn even when preset is given: same draws after it
+    if preset is not None and preset not in PRESETS:
+        raise ArgumentError(f"random_water: unknown preset {preset!r}; expected one of {names} or None")
+    base = PRESETS[preset if preset is not None else pick]
+
+    def factor(low: float, high: float, size=None):
+        return np.exp(rng.uniform(np.log(low), np.log(high), size))
+
+    classes = list(JERLOV_KD)
+    position = classes.index(base.water_type)
+    # Half the time a neighbouring class, one step either way (clamped to the list's ends).
+    step = int(rng.choice([-1, 1])) if rng.random() < 0.5 else 0
+    water_type = classes[int(np.clip(position + step, 0, len(classes) - 1))]
+    backscatter = np.clip(np.asarray(base.backscatter_coef) * factor(0.6, 1.7) * rng.uniform(0.85, 1.15, 3), 0.01, 2.0)
+    veil = np.clip(np.asarray(base.veiling_light) * rng.uniform(0.7, 1.35, 3), 0.01, 0.9)
+    lamp_draw, lamp_strength, lamp_scale = rng.random(), rng.uniform(0.2, 1.0), rng.uniform(0.6, 1.5)
+    if base.artificial_light > 0:
+        light = base.artificial_light * lamp_scale
+    else:
+        light = lamp_strength if lamp_draw < 0.15 else 0.0
+    return dataclasses.replace(
+        base,
+        water_type=water_type,
+        scattering=float(np.clip(base.scattering * factor(0.5, 2.0), 0.005, 1.5)),
+        backscatter_coef=tuple(float(v) for v in backscatter),
+        veiling_light=tuple(float(v) for v in veil),
+        backscatter_strength=float(base.backscatter_strength * rng.uniform(0.6, 1.4)),
+        forward_scatter=float(min(base.forward_scatter * factor(0.5, 2.0), 2.5)),
+        depth=float(np.clip(base.depth * factor(0.5, 2.0), 0.5, 40.0)),
+        gain=float(np.clip(base.gain * factor(0.67, 1.5), 0.05, 1.5)),
+        full_well=float(np.clip(base.full_well * factor(0.5, 2.0), 100.0, 5000.0)),
+        read_noise=float(np.clip(base.read_noise * factor(0.5, 2.0), 0.0005, 0.03)),
+        artificial_light=float(light),
+        light_cone=float(rng.uniform(0.3, 0.8)),
+        marine_snow=float(min(base.marine_snow * factor(0.3, 3.0), 1000.0)),
+        snow_brightness=float(np.clip(base.snow_brightness * rng.uniform(0.6, 1.3), 0.1, 1.2)),
+        baseline=float(base.baseline * factor(0.5, 2.0)),
+    )
 
 
 def _resolve_params(preset, overrides: Mapping) -> WaterParams:

@@ -8,6 +8,7 @@ plus an optional ``"__metadata__"`` dict of strings, then the raw little-endian 
 from __future__ import annotations
 
 import json
+import math
 import os
 import struct
 from typing import Any, Mapping
@@ -45,25 +46,61 @@ def save_safetensors(path: str | os.PathLike, tensors: Mapping[str, Any], metada
             f.write(raw)
 
 
+#: The largest JSON header accepted (the reference implementation's limit, 100 MB).
+MAX_HEADER_BYTES = 100_000_000
+
+
 def load_safetensors(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """(name -> array, metadata) from a safetensors file; corrupt files raise ``FormatError`` naming it."""
+    """(name -> array, metadata) from a safetensors file.
+
+    Every header field is checked before any tensor is allocated: each tensor's byte range must lie
+    in the file and hold exactly ``prod(shape) * itemsize`` bytes, so a header claiming more data
+    than the file has is rejected. A corrupt or truncated file raises ``FormatError`` naming it.
+    """
     with open(path, "rb") as f:
         data = f.read()
     try:
-        (n,) = struct.unpack("<Q", data[:8])
-        if 8 + n > len(data):
-            raise ValueError(f"header length {n} exceeds the file size {len(data)}")
-        header = json.loads(data[8:8 + n])
-        meta = header.pop("__metadata__", {}) or {}
-        body = memoryview(data)[8 + n:]
-        out = {}
-        for name, info in header.items():
-            begin, end = info["data_offsets"]
-            dtype = np.dtype(_DTYPES[info["dtype"]]).newbyteorder("<")
-            shape = tuple(info["shape"])
-            if not 0 <= begin <= end <= len(body) or end - begin != int(np.prod(shape)) * dtype.itemsize:
-                raise ValueError(f"tensor {name}: offsets {begin}..{end} do not fit shape {list(shape)} / file size")
-            out[name] = np.frombuffer(body[begin:end], dtype=dtype).reshape(shape).astype(dtype.newbyteorder("="))
-        return out, dict(meta)
-    except (struct.error, ValueError, KeyError, TypeError) as e:
+        header, body = _parse_header(data)
+        meta = header.pop("__metadata__", None) or {}
+        if not isinstance(meta, dict) or not all(isinstance(v, str) for v in meta.values()):
+            raise ValueError("__metadata__ must map names to strings")
+        return {name: _tensor(name, info, body) for name, info in header.items()}, dict(meta)
+    except (ValueError, RecursionError) as e:  # json's errors (incl. UnicodeDecodeError) are ValueErrors
         raise FormatError(f"{os.fspath(path)}: not a valid safetensors file ({e})") from None
+
+
+def _parse_header(data: bytes) -> tuple[dict, memoryview]:
+    """The JSON header and the byte buffer after it; ValueError if they do not fit the file."""
+    if len(data) < 8:
+        raise ValueError(f"file of {len(data)} bytes, shorter than the 8-byte header length")
+    (n,) = struct.unpack("<Q", data[:8])
+    if n > min(len(data) - 8, MAX_HEADER_BYTES):
+        raise ValueError(f"header length {n} exceeds the file size {len(data)} (or the limit {MAX_HEADER_BYTES})")
+    header = json.loads(data[8:8 + n])
+    if not isinstance(header, dict):
+        raise ValueError(f"the header is a JSON {type(header).__name__}, not an object")
+    return header, memoryview(data)[8 + n:]
+
+
+def _is_index(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def _tensor(name: str, info: Any, body: memoryview) -> np.ndarray:
+    """One tensor of the header, checked against the byte buffer before it is read."""
+    if not isinstance(info, dict) or not {"dtype", "shape", "data_offsets"} <= info.keys():
+        raise ValueError(f"tensor {name}: entry must have dtype, shape and data_offsets")
+    kind, shape, offsets = info["dtype"], info["shape"], info["data_offsets"]
+    if not isinstance(kind, str) or kind not in _DTYPES:
+        raise ValueError(f"tensor {name}: unsupported dtype {str(kind)[:20]!r} (supported: {', '.join(_DTYPES)})")
+    if not isinstance(shape, list) or not all(_is_index(d) for d in shape):
+        raise ValueError(f"tensor {name}: shape must be a list of non-negative integers, got {str(shape)[:60]}")
+    if not isinstance(offsets, list) or len(offsets) != 2 or not all(_is_index(o) for o in offsets):
+        raise ValueError(f"tensor {name}: data_offsets must be [begin, end], got {str(offsets)[:60]}")
+    dtype = np.dtype(_DTYPES[kind]).newbyteorder("<")
+    begin, end = offsets
+    nbytes = math.prod(shape) * dtype.itemsize
+    if not begin <= end <= len(body) or end - begin != nbytes:
+        raise ValueError(f"tensor {name}: shape {shape} of {kind} needs {nbytes} bytes but data_offsets "
+                         f"{begin}..{end} span {end - begin} of a {len(body)}-byte buffer")
+    return np.frombuffer(body[begin:end], dtype=dtype).reshape(shape).astype(dtype.newbyteorder("="))

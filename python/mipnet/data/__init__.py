@@ -1,4 +1,4 @@
-"""Stereo datasets, a seeded DataLoader and procedural pairs."""
+"""Stereo datasets, a seeded DataLoader and procedural pairs (simple planar ones and natural-statistics scenes)."""
 
 from .datasets import (
     ETH3D,
@@ -14,6 +14,8 @@ from .datasets import (
     StereoDataset,
 )
 from .loader import DataLoader, default_collate
+from .real import REAL_SETS, RealPairs
+from .scenes import GENERATOR_VERSION, SceneStereo, make_scene
 from .synthetic import SyntheticStereo, make_pair, synthetic_underwater_pairs
 
 __all__ = [
@@ -33,4 +35,9 @@ __all__ = [
     "SyntheticStereo",
     "make_pair",
     "synthetic_underwater_pairs",
+    "SceneStereo",
+    "make_scene",
+    "GENERATOR_VERSION",
+    "RealPairs",
+    "REAL_SETS",
 ]

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io import read_crestereo_disparity, read_image, read_kitti_disparity, read_pfm
+from ..io import read_crestereo_disparity, read_image, read_kitti_disparity, read_npy, read_pfm
 
 __all__ = [
     "Dataset",
@@ -150,7 +150,7 @@ def _read_crestereo(sample: _Sample) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _read_npy(sample: _Sample) -> tuple[np.ndarray, np.ndarray]:
-    disparity = np.load(sample.disparity).astype(np.float32)
+    disparity = read_npy(sample.disparity).astype(np.float32)
     return disparity, np.isfinite(disparity) & (disparity > 0)
 
 

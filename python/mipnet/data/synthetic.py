@@ -15,9 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ArgumentError
 from .datasets import Dataset
 
-__all__ = ["make_pair", "SyntheticStereo", "synthetic_underwater_pairs"]
+EVAL_SEED_START = 1_000_000  # training pairs use seeds below it, evaluation pairs from it on
+
+__all__ = ["make_pair", "GeneratedStereo", "SyntheticStereo", "synthetic_underwater_pairs", "EVAL_SEED_START"]
 
 _TABLE_SIZE = 256  # value-noise lattice period (power of two: wrap with a bit mask)
 _OCTAVES = ((40.0, 0.45), (14.0, 0.35), (6.0, 0.20))  # (period px, amplitude) of luminance noise
@@ -225,8 +228,38 @@ def apply_water(pair: dict, underwater, seed: int) -> str | None:
     return label
 
 
-class SyntheticStereo(Dataset):
-    """``n`` procedural pairs (:func:`make_pair`), optionally degraded underwater.
+def check_size(function: str, height, width) -> tuple[int, int]:
+    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in (height, width)):
+        raise ArgumentError(f"{function}: height and width must be positive integers, got {height!r} x {width!r}")
+    return int(height), int(width)
+
+
+def check_seed(function: str, seed) -> int:
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ArgumentError(f"{function}: seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
+
+
+def _check_water(owner: str, underwater) -> None:
+    from ..underwater import PRESETS, WaterParams, _resolve_params
+
+    if isinstance(underwater, dict):
+        options = dict(underwater)
+        try:
+            _resolve_params(options.pop("preset", "coastal"), options)
+        except (TypeError, ValueError) as error:
+            raise ArgumentError(f"{owner}: bad underwater options {underwater!r}: {error}") from None
+    elif not (underwater is None or underwater == "random" or isinstance(underwater, WaterParams)
+              or (isinstance(underwater, str) and underwater in PRESETS)):
+        raise ArgumentError(f"{owner}: underwater must be None, 'random', a WaterParams, a dict or one of "
+                            f"{list(PRESETS)}, got {underwater!r}")
+
+
+class GeneratedStereo(Dataset):
+    """``n`` generated pairs; item i is ``generate(height, width, seed + i)``, optionally underwater.
+
+    Training sets use pair seeds below :data:`EVAL_SEED_START` (1,000,000) and evaluation sets
+    (``mipnet eval`` by default) start at it; a set may not straddle it.
 
     Parameters
     ----------
@@ -235,25 +268,38 @@ class SyntheticStereo(Dataset):
     height, width : int
         Image size.
     seed : int
-        Pair i is ``make_pair(height, width, seed + i)``. Training sets use seeds below 1,000,000,
-        evaluation sets (``mipnet eval --seed 1000000``) start there.
-    underwater : str, WaterParams or dict, optional
-        A preset name of :func:`mipnet.underwater.degrade`, ``"random"`` (water drawn around the
-        presets per pair), a ``WaterParams``, or a dict of ``degrade`` keyword arguments
-        (``preset`` plus overrides). None: in-air pairs.
+        First pair seed.
+    underwater : None, str, WaterParams or dict
+        None: in air; a preset name of :data:`mipnet.underwater.PRESETS`; ``"random"``: water drawn
+        per item by :func:`mipnet.underwater.random_water` from a generator seeded by the pair seed;
+        a ``WaterParams``; or a dict of :func:`mipnet.underwater.degrade` keyword arguments
+        (``preset`` plus ``WaterParams`` overrides).
 
     Shapes
     ------
     items: left, right (H, W, 3) uint8; disparity (H, W) float32; valid (H, W) bool.
     """
 
-    name = "synthetic"
+    name = "generated"
 
     def __init__(self, n: int, height: int, width: int, seed: int = 0, underwater=None):
-        if n < 0:
-            raise ValueError(f"SyntheticStereo: n must be >= 0, got {n}")
-        self.n, self.height, self.width, self.seed = n, height, width, seed
+        owner = type(self).__name__
+        if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 0:
+            raise ArgumentError(f"{owner}: n must be a non-negative integer, got {n!r}")
+        self.n = int(n)
+        self.height, self.width = check_size(owner, height, width)
+        self.seed = check_seed(owner, seed)
+        if self.n and self.seed < EVAL_SEED_START <= self.seed + self.n - 1:
+            raise ArgumentError(f"{owner}: seeds {self.seed}..{self.seed + self.n - 1} straddle {EVAL_SEED_START:,} "
+                                "(training seeds lie below it, evaluation seeds from it on)")
+        _check_water(owner, underwater)
         self.underwater = underwater
+
+    def generate(self, height: int, width: int, seed: int) -> dict:
+        raise NotImplementedError
+
+    def extra_meta(self) -> dict:
+        return {}
 
     def __len__(self) -> int:
         return self.n
@@ -261,10 +307,19 @@ class SyntheticStereo(Dataset):
     def __getitem__(self, index: int) -> dict:
         index = self._check_index(index)
         seed = self.seed + index
-        pair = make_pair(self.height, self.width, seed)
+        pair = self.generate(self.height, self.width, seed)
         label = apply_water(pair, self.underwater, seed)
-        pair["meta"] = {"dataset": self.name, "index": index, "seed": seed, "underwater": label}
+        pair["meta"] = {"dataset": self.name, "index": index, "seed": seed, "underwater": label, **self.extra_meta()}
         return pair
+
+
+class SyntheticStereo(GeneratedStereo):
+    """``n`` planar procedural pairs of :func:`make_pair` (see :class:`GeneratedStereo`)."""
+
+    name = "synthetic"
+
+    def generate(self, height: int, width: int, seed: int) -> dict:
+        return make_pair(height, width, seed)
 
 
 def synthetic_underwater_pairs(

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from .config import PRESETS, read_config_file, resolve_config
+from .config import PRESETS, load_config_file, resolve_config
 
 # flags that map one-to-one onto TrainConfig fields
 _FIELDS = ("steps", "schedule_steps", "batch_size", "crop", "iters", "lr", "init", "seed", "val_every", "val_pairs",
@@ -62,8 +62,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.out:
         raise ArgumentError("mipnet train: give --out DIR (a new run) or --resume DIR")
-    file_settings = read_config_file(args.config) if args.config else {}
     flags = {f: getattr(args, f) for f in _FIELDS + ("augment", "freeze_bn")}
-    config = resolve_config(args.preset, file_settings, flags)
+    config = load_config_file(args.config, args.preset, flags) if args.config else resolve_config(args.preset, None, flags)
     fit(config, args.out, progress=not args.quiet)
     return 0

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import sys
 from typing import Any, Mapping
 
@@ -96,6 +97,24 @@ class TrainConfig:
         self.val_size = _pair(self.val_size, "val_size")
         self.val_iters = _pair(self.val_iters, "val_iters")
         self.data = [self.data] if isinstance(self.data, str) else list(self.data)
+        for name in ("steps", "batch_size", "seed", "val_every", "val_pairs", "checkpoint_every", "workers"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise ArgumentError(f"TrainConfig: {name} must be an integer, got {value!r}")
+        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                raise ArgumentError(f"TrainConfig: {name} must be a finite number, got {value!r}")
+        if not all(isinstance(d, str) for d in self.data):
+            raise ArgumentError(f"TrainConfig: data must be a list of spec strings, got {self.data!r}")
+        for name in ("init", "val_data"):
+            if not (getattr(self, name) is None or isinstance(getattr(self, name), str)):
+                raise ArgumentError(f"TrainConfig: {name} must be a string, got {getattr(self, name)!r}")
+        for name in ("freeze_bn", "augment"):
+            if not isinstance(getattr(self, name), bool):
+                raise ArgumentError(f"TrainConfig: {name} must be true or false, got {getattr(self, name)!r}")
+        if self.schedule_steps is not None and (not isinstance(self.schedule_steps, int) or isinstance(self.schedule_steps, bool)):
+            raise ArgumentError(f"TrainConfig: schedule_steps must be an integer, got {self.schedule_steps!r}")
         positive = {"steps": self.steps, "batch_size": self.batch_size, "lr": self.lr, "checkpoint_every": self.checkpoint_every}
         for name, value in positive.items():
             if not value > 0:
@@ -122,9 +141,11 @@ class TrainConfig:
 def _pair(value: Any, name: str) -> tuple[int, int]:
     try:
         a, b = value
-        return int(a), int(b)
     except (TypeError, ValueError):
-        raise ArgumentError(f"TrainConfig: {name} must be two integers, got {value!r}") from None
+        a = b = None
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (a, b)):
+        raise ArgumentError(f"TrainConfig: {name} must be two integers, got {value!r}")
+    return int(a), int(b)
 
 
 PRESETS: dict[str, dict[str, Any]] = {
@@ -148,9 +169,19 @@ def read_config_file(path: str) -> dict[str, Any]:
             settings = tomllib.load(f)
     except OSError as e:
         raise ArgumentError(f"mipnet train: cannot read config file {path}: {e.strerror}") from None
-    except tomllib.TOMLDecodeError as e:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise ArgumentError(f"mipnet train: {path} is not valid TOML: {e}") from None
     return settings
+
+
+def load_config_file(path: str, preset: str | None = None, overrides: Mapping[str, Any] | None = None) -> TrainConfig:
+    """``TrainConfig`` from a TOML run file (plus a preset below it and overrides above it); every
+    error names the file."""
+    settings = read_config_file(path)
+    try:
+        return resolve_config(preset, settings, overrides)
+    except ArgumentError as e:
+        raise ArgumentError(f"{path}: {e}") from None
 
 
 def resolve_config(preset: str | None = None, file_settings: Mapping[str, Any] | None = None,
@@ -160,7 +191,7 @@ def resolve_config(preset: str | None = None, file_settings: Mapping[str, Any] |
     file_settings = dict(file_settings or {})
     preset = preset or file_settings.pop("preset", None)
     file_settings.pop("preset", None)
-    if preset is not None and preset not in PRESETS:
+    if preset is not None and (not isinstance(preset, str) or preset not in PRESETS):
         raise ArgumentError(f"mipnet train: unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
     settings = dict(PRESETS.get(preset, {}))
     settings.update(file_settings)

@@ -23,9 +23,9 @@ import numpy as np
 
 from .. import data
 from ..data.datasets import Dataset
+from ..data.synthetic import EVAL_SEED_START
 from ..errors import ArgumentError
 
-EVAL_SEED_START = 1_000_000
 GENERATED = ("scenes", "scenes-underwater", "synthetic", "synthetic-underwater")
 ON_DISK = ("sceneflow", "middlebury2014", "middeval3", "eth3d", "kitti2012", "kitti2015", "crestereo", "folder")
 

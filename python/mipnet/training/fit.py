@@ -158,8 +158,8 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
     elif list_checkpoints(out):
         raise ArgumentError(f"mipnet train: {out} already holds a run; continue it with --resume {out} or choose another --out")
     target = int(steps if steps is not None else config.steps)
-    if config.schedule_steps is None:
-        config = dataclasses.replace(config, schedule_steps=target)
+    if config.schedule_steps is None:  # the schedule spans the run's planned length, whatever a call stops at
+        config = dataclasses.replace(config, schedule_steps=config.steps)
     if target + 1 > config.schedule_steps + 100:
         raise ArgumentError(f"mipnet train: the one-cycle schedule of this run ends at step {config.schedule_steps + 100}; "
                             f"start a new stage with --init {os.path.join(out, 'model.safetensors')} to train to {target}")

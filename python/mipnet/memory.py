@@ -1,0 +1,320 @@
+"""Peak memory of a MIPNet forward pass or training step, predicted before it runs.
+
+:func:`estimate` counts, from the model's tensor sizes, the activations a pass keeps alive at its
+peak: for a training step every activation the forward saves for backward, plus the parameter
+gradients; for an eval pass the largest set of tensors alive at one moment. :func:`check` compares
+the estimate with the memory the process may still use (``MemAvailable`` of ``/proc/meminfo``, the
+cgroup limit, ``MIPNET_MEMORY_LIMIT``) and raises :class:`mipnet.errors.MemoryLimitError` instead of
+letting the kernel kill the process. ``MIPNET_MEMORY_CHECK=0`` turns the check off.
+
+The whole model of the network's memory is :func:`activation_bytes`: update it when an op starts to
+save, or stops saving, a tensor. ``tests_py/test_memory.py`` compares it with the tensors the
+autograd graph really holds and with the peak resident memory of fresh processes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+from typing import Any
+
+import numpy as np
+
+from .errors import ArgumentError, MemoryLimitError
+
+__all__ = ["MemoryEstimate", "estimate", "activation_bytes", "activation_terms", "available_memory", "check",
+           "check_forward", "format_bytes", "measure_peak"]
+
+MiB = 2**20
+#: Resident memory of a fresh process after ``import mipnet`` (interpreter, numpy, Pillow, the Rust
+#: core and its thread pool), before any model exists; measured on Linux x86-64 (42 MiB).
+BASE_PROCESS_BYTES = 42 * MiB
+#: glibc's malloc serves requests below its mmap threshold, which adapts up to 32 MiB on 64-bit
+#: Linux, from its heap and keeps freed heap memory in the process; larger requests get their own
+#: mapping, returned to the system when freed.
+MMAP_THRESHOLD_MAX = 32 * MiB
+#: Eval peak RSS / counted live tensors, measured from 64x96 to 768x1024 (1.6 to 2.2 when the
+#: encoder's tensors are heap-sized: the memory the encoder freed stays in the process while the
+#: 1/4-level stage allocates its own; 1.2 when they are mapped: kernel temporaries only).
+EVAL_HEAP_FACTOR, EVAL_MMAP_FACTOR = 1.8, 1.25
+DIVISOR = 16  # the model pads H and W to multiples of 16
+
+
+@dataclasses.dataclass(frozen=True)
+class MemoryEstimate:
+    """The predicted peak memory of one pass. Sizes in bytes."""
+
+    mode: str  # "eval" or "train" (one training step: forward, loss and backward)
+    height: int
+    width: int
+    batch: int
+    iters: tuple[int, int]
+    activations: int  # what the pass adds to the process at its peak
+    baseline: int  # a fresh process holding the model (interpreter, libraries, weights)
+
+    @property
+    def total(self) -> int:
+        """Peak resident memory of a fresh process running the pass."""
+        return self.baseline + self.activations
+
+    def describe(self) -> str:
+        what = "eval forward" if self.mode == "eval" else "training step"
+        return (f"{what} at {self.height}x{self.width} (HxW), batch {self.batch}, iters {self.iters}: "
+                f"{format_bytes(self.activations)} for the pass, peak {format_bytes(self.total)} in a fresh process")
+
+
+def format_bytes(n: float) -> str:
+    return f"{n / 2**30:.2f} GiB" if n >= 2**30 else f"{n / MiB:.0f} MiB"
+
+
+def activation_bytes(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
+                     config: Any = None, itemsize: int = 4) -> int:
+    """The bytes a MIPNet pass adds to the process at its peak: the sum of :func:`activation_terms`."""
+    return int(sum(activation_terms(height, width, batch, mode, iters, config, itemsize).values()))
+
+
+def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
+                     config: Any = None, itemsize: int = 4) -> dict[str, float]:
+    """THE memory model of the network: the parts of a pass's peak, in bytes, by name.
+
+    Every term is (channels per image) x (pixels at its level) x ``itemsize``, at the levels of the
+    padded input (H, W multiples of 16): 1 (full resolution), 2, 4 (features, 1/4 updates) and 16.
+    Eval: ``live`` (the largest set of tensors alive at once) and ``allocator`` (what the heap keeps
+    and kernels add on top). Training: what the forward saves for backward (``encoder``, ``levels``,
+    ``updates``, ``loss``) and the ``backward`` working set.
+
+    Parameters
+    ----------
+    height, width : int
+        Input image size (before the padding to a multiple of 16).
+    batch : int
+        Image pairs per pass.
+    mode : str
+        ``"eval"`` (a forward without autograd) or ``"train"`` (forward, loss and backward).
+    iters : (int, int)
+        Iterations at 1/16 and at 1/4.
+    config : MIPNetConfig, optional
+        The architecture switches (default: the full model).
+    itemsize : int
+        4 (float32) or 8 (float64).
+
+    Returns
+    -------
+    dict
+        Name -> bytes.
+    """
+    from .model import MIPNetConfig
+
+    cfg = config or MIPNetConfig()
+    if mode not in ("eval", "train"):
+        raise ArgumentError(f"memory: mode must be 'eval' or 'train', got {mode!r}")
+    n16, n4 = iters
+    hp, wp = -(-height // DIVISOR) * DIVISOR, -(-width // DIVISOR) * DIVISOR
+    # pixels of one image at level s: (H / s) * (W / s)
+    px = {s: (hp // s) * (wp // s) for s in (1, 2, 4, 16)}
+    corr_rls = (2 * cfg.rx + 1) * (2 * cfg.ry + 1)
+
+    def level(channels_per_image: float, s: int, images: int = batch) -> float:
+        return channels_per_image * px[s] * images * itemsize
+
+    if mode == "eval":
+        # left and right as given, the normalised padded pair (2N images): 4 x 3 channels per pair
+        images = level(12, 1)
+        # encoder peak, the second iAFF gate of layer1 (2N images, 64 channels at 1/2): the block input,
+        # y, x', z1, w2 and the gate's w2 x, 1 - w2, (1 - w2) x' (without iAFF: x, y, x', the sum, the ReLU)
+        encoder = level((8 if cfg.use_aff else 5) * 64, 2, 2 * batch)
+        if cfg.use_ip:
+            # building the IP seed stack at 1/4: F_L, F_R, hidden, context (768), the 4 shifted copies of
+            # F_R (1024), the concatenation (1280) and its copy to the standard layout (1280)
+            stage4 = level(768 + 1024 + 2 * 1280, 4)
+        else:
+            # an RLS update at 1/4: F_L, F_R, hidden, context (768), warped F_R (256), the GRU's [h, x] (384 x 2)
+            stage4 = level(768 + 256 + 2 * 384, 4)
+        live = images + max(encoder, stage4)
+        # the encoder's tensors decide whether the memory it frees stays in the heap (see EVAL_HEAP_FACTOR)
+        heap_sized = 64 * px[2] * 2 * batch * itemsize < MMAP_THRESHOLD_MAX
+        return {"live": live, "allocator": live * ((EVAL_HEAP_FACTOR if heap_sized else EVAL_MMAP_FACTOR) - 1)}
+
+    # ---- training: what the forward saves for backward (each array once, however many ops save it)
+    per_block = 16 if cfg.use_aff else 6  # x channels of one ResBlock with output channels c (see below)
+    # stem: conv input (3 at 1/1), norm input and ReLU output (64 + 64 at 1/2). A ResBlock of c output
+    # channels keeps norm1/norm2/norm3 inputs, y1, y2 and its output (6c); iAFF adds per MS-CAM its
+    # input, two c/4 branch activations, the bn2 input and the sigmoid (3.5c), per gate 1 - w (c), and x' (c)
+    encoder = (level(3, 1, 2 * batch) + level(128 + 2 * per_block * 64, 2, 2 * batch)
+               + level(per_block * (2 * 96 + 2 * 128), 4, 2 * batch))
+    # per level, shared by all its iterations: F_L (both correlations), the seed stack (IP grid_sample),
+    # F_R (RLS grid_sample); at 1/4 also tanh / ReLU of hidden and context, at 1/16 the pooled hidden
+    shared = (256 + (1280 if cfg.use_ip else 0) + (256 if cfg.use_rls else 0))
+    levels = level(shared + 256, 4) + level(shared + 128, 16)
+    # one IP call: grid (2), warped stack (1280); motion encoder conv inputs (10 + 2 + 128) and ReLUs
+    # (96 + 64 + 32 + 94); ConvGRU [h, x] and [r h, x] (2 x 352), z, r, q, 1 - z (4 x 128); head input
+    # h' (128), disp / mask head ReLUs (128 + 256); the prediction's f_x and convex mask (1 + 144)
+    ip_call = (2 + 1280) + (140 + 286) + (2 * 352 + 4 * 128) + (128 + 128 + 256) + 145
+    # one RLS call: grid (2), warped F_R (256); motion conv inputs (corr + 2 + 192) and ReLUs
+    # (64 + 128 + 64 + 64 + 126); SepConvGRU, two steps of [h, x], [r h, x] (2 x 384), z, r, q, 1 - z,
+    # plus the first step's h (128); h' (128), head ReLUs (256 + 256); the prediction (1 + 144)
+    rls_call = (2 + 256) + (corr_rls + 194 + 446) + (2 * (2 * 384 + 4 * 128) + 128) + (128 + 512) + 145
+    per_iter = (ip_call if cfg.use_ip else 0) + (rls_call if cfg.use_rls else 0)
+    updates = level(per_iter * n16, 16) + level(per_iter * n4, 4)
+    # the loss keeps each full-resolution prediction (1 channel) and the target and mask (~1.25)
+    predictions = n16 * (cfg.use_ip + cfg.use_rls) + n4 * (cfg.use_ip + cfg.use_rls)
+    loss = level(predictions + 1.25, 1)
+    # backward, on top of the saved tensors while they are freed: the gradients accumulated for the
+    # tensors all 1/4 iterations read (shared, hidden and context) and those flowing through one update
+    backward = level(shared + 256 + max(ip_call if cfg.use_ip else 0, rls_call if cfg.use_rls else 0), 4)
+    return {"encoder": encoder, "levels": levels, "updates": updates, "loss": loss, "backward": backward}
+
+
+def model_bytes(model: Any = None, itemsize: int = 4) -> int:
+    """Bytes of the parameters and buffers of ``model`` (default: a full MIPNet of ``itemsize``),
+    counted without copying them."""
+    if model is None:
+        from .model import MIPNet
+
+        return model_bytes(MIPNet()) // 4 * itemsize
+    return (sum(p.data.nbytes for p in model.parameters())
+            + sum(np.asarray(b).nbytes for _, b in model.named_buffers()))
+
+
+def estimate(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
+             model: Any = None) -> MemoryEstimate:
+    """The predicted peak memory of a pass of ``model`` (default: a float32 MIPNet) on images of
+    ``height`` x ``width``. A training step adds the parameter gradients to the saved activations."""
+    config = model.config if model is not None else None
+    itemsize = model.dtype.itemsize if model is not None else 4
+    weights = model_bytes(model, itemsize)
+    extra = activation_bytes(height, width, batch, mode, tuple(iters), config, itemsize)
+    if mode == "train":
+        extra += weights  # the gradient of every parameter
+    return MemoryEstimate(mode, height, width, batch, (int(iters[0]), int(iters[1])), int(extra),
+                          BASE_PROCESS_BYTES + weights)
+
+
+# ---------------------------------------------------------------------------- available memory
+
+_UNITS = {"": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
+
+
+def parse_size(text: str) -> int:
+    """Bytes from ``"123456"``, ``"512M"``, ``"8G"``, ``"1.5GiB"`` (binary units)."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kKmMgGtT]?)(i?[bB])?\s*", text)
+    if not match:
+        raise ArgumentError(f"memory size {text!r}: expected a number of bytes with an optional K, M, G or T")
+    return int(float(match.group(1)) * _UNITS[match.group(2).lower()])
+
+
+def _read(path: str) -> str | None:
+    try:
+        with open(path) as f:
+            return f.read()
+    except OSError:
+        return None
+
+
+def _resident_bytes() -> int:
+    status = _read("/proc/self/status") or ""
+    match = re.search(r"^VmRSS:\s+(\d+) kB", status, re.M)
+    return int(match.group(1)) * 1024 if match else 0
+
+
+def _cgroup_room() -> tuple[int, str] | None:
+    """(limit - usage, which limit) of this process's memory cgroup (v2, else v1), if it has a limit."""
+    membership = _read("/proc/self/cgroup") or ""
+    v2 = re.search(r"^0::(.*)$", membership, re.M)
+    if v2:
+        base = "/sys/fs/cgroup" + v2.group(1).rstrip("/")
+        for directory in (base, "/sys/fs/cgroup"):
+            limit, usage = _read(f"{directory}/memory.max"), _read(f"{directory}/memory.current")
+            if limit and usage and limit.strip() != "max":
+                return int(limit) - int(usage), f"cgroup memory.max {format_bytes(int(limit))}"
+    limit, usage = _read("/sys/fs/cgroup/memory/memory.limit_in_bytes"), _read("/sys/fs/cgroup/memory/memory.usage_in_bytes")
+    if limit and usage and int(limit) < 2**60:
+        return int(limit) - int(usage), f"cgroup memory.limit_in_bytes {format_bytes(int(limit))}"
+    return None
+
+
+def available_memory() -> tuple[int, str] | None:
+    """(bytes this process may still allocate, where the bound comes from), or None where it cannot be
+    told (no ``/proc/meminfo``): the least of ``MemAvailable``, the cgroup's room and
+    ``MIPNET_MEMORY_LIMIT`` (a cap on this process's resident memory, e.g. ``8G``) minus what it uses."""
+    bounds = []
+    meminfo = _read("/proc/meminfo")
+    match = re.search(r"^MemAvailable:\s+(\d+) kB", meminfo or "", re.M)
+    if match:
+        bounds.append((int(match.group(1)) * 1024, "MemAvailable in /proc/meminfo"))
+    cgroup = _cgroup_room()
+    if cgroup:
+        bounds.append(cgroup)
+    cap = os.environ.get("MIPNET_MEMORY_LIMIT")
+    if cap:
+        limit = parse_size(cap)
+        bounds.append((limit - _resident_bytes(), f"MIPNET_MEMORY_LIMIT={cap}"))
+    return min(bounds) if bounds else None
+
+
+def check(needed: MemoryEstimate) -> None:
+    """Raises :class:`MemoryLimitError` if the pass needs more than :func:`available_memory` (unless
+    ``MIPNET_MEMORY_CHECK=0``)."""
+    if os.environ.get("MIPNET_MEMORY_CHECK", "1") == "0":
+        return
+    available = available_memory()
+    if available is None or needed.activations <= available[0]:
+        return
+    room, source = available
+    what = "eval forward" if needed.mode == "eval" else "training step"
+    raise MemoryLimitError(
+        f"MIPNet {what} at {needed.height}x{needed.width} (HxW), batch {needed.batch}, iters {needed.iters} "
+        f"needs about {format_bytes(needed.activations)} more memory, but only {format_bytes(max(room, 0))} is "
+        f"available ({source}); use smaller images, a smaller batch or fewer iterations "
+        f"(MIPNET_MEMORY_CHECK=0 skips this check)", estimate=needed.activations, available=max(room, 0))
+
+
+def check_forward(model: Any, shape: tuple[int, ...], iters: tuple[int, int], training: bool) -> None:
+    """The check :meth:`MIPNet.forward` runs before a pass on an (N, 3, H, W) input."""
+    n, _, h, w = shape
+    check(estimate(h, w, n, "train" if training else "eval", iters, model))
+
+
+# ------------------------------------------------------------------------------ measured peaks
+
+# Runs in a fresh process: builds a float32 MIPNet, runs one pass, prints its peak resident memory.
+_MEASURE = r"""
+import json, sys
+import numpy as np
+import mipnet
+mode, h, w, n, n16, n4 = sys.argv[1], *map(int, sys.argv[2:7])
+mipnet.manual_seed(0)
+model = mipnet.MIPNet()
+rng = np.random.default_rng(0)
+left = rng.uniform(0, 255, (n, 3, h, w)).astype(np.float32)
+right = np.roll(left, -4, axis=3)
+if mode == "eval":
+    model.eval()(left, right, iters=(n16, n4))
+else:
+    gt = np.full((n, 1, h, w), 4.0, np.float32)
+    mipnet.losses.sequence_loss(model.train()(left, right, iters=(n16, n4)), gt, gt > 0).backward()
+# VmHWM, the peak of this process's own memory map: ru_maxrss would also count the parent's resident
+# memory at fork time, which Linux carries over exec
+hwm = next(line for line in open("/proc/self/status") if line.startswith("VmHWM:"))
+print(json.dumps({"peak": int(hwm.split()[1]) * 1024}))
+"""
+
+
+def measure_peak(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
+                 threads: int | None = None) -> int:
+    """Peak resident memory (bytes, ``VmHWM``; Linux) of a fresh Python process that runs one pass of a
+    float32 MIPNet: what :meth:`MemoryEstimate.total` predicts. The child runs the memory check, so a
+    pass too large for this machine raises instead of exhausting it."""
+    import json
+    import subprocess
+    import sys
+
+    env = dict(os.environ)
+    if threads:
+        env["MIPNET_NUM_THREADS"] = str(threads)
+    args = [mode, height, width, batch, *iters]
+    done = subprocess.run([sys.executable, "-c", _MEASURE, *map(str, args)], capture_output=True, text=True, env=env)
+    if done.returncode != 0:
+        raise RuntimeError(f"measure_peak {mode} {height}x{width}: the child failed: {done.stderr.strip()[-500:]}")
+    return int(json.loads(done.stdout.strip().splitlines()[-1])["peak"])

@@ -1,0 +1,67 @@
+"""The weights that ship inside the package: ``assets/mipnet_pretrained.safetensors``.
+
+Float16 safetensors (upcast to float32 on load) trained by mipnet itself on its generated scenes,
+on a CPU (``docs/training.md``). Its metadata says what it was trained on: the data and generator
+version, steps, crop, batch, iterations, the commands, the package version and the validation table.
+``export_pretrained`` writes such a file from a run's weights.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FormatError
+from .weights import load_safetensors, save_safetensors
+
+PRETRAINED_PATH = Path(__file__).resolve().parent / "assets" / "mipnet_pretrained.safetensors"
+
+__all__ = ["PRETRAINED_PATH", "available", "load_pretrained", "pretrained_info", "export_pretrained"]
+
+
+def available() -> bool:
+    """Whether this installation ships trained weights."""
+    return PRETRAINED_PATH.is_file()
+
+
+def load_pretrained():
+    """The eval-mode ``MIPNet`` with the shipped weights (float32)."""
+    from .model import load
+
+    if not available():
+        raise FormatError(f"mipnet ships no trained weights in this installation (expected {PRETRAINED_PATH})")
+    return load(str(PRETRAINED_PATH)).eval()
+
+
+def pretrained_info() -> dict:
+    """The shipped file's metadata, JSON values decoded (empty without shipped weights)."""
+    if not available():
+        return {}
+    _, meta = load_safetensors(PRETRAINED_PATH)
+    out = {}
+    for key, value in meta.items():
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def export_pretrained(weights: str, path: str | os.PathLike = PRETRAINED_PATH, **metadata) -> str:
+    """Writes ``weights`` (a run's ``best.safetensors``) as float16 with its metadata plus ``metadata``
+    (JSON-encoded unless strings); returns the path. Values outside float16's range are an error."""
+    tensors, meta = load_safetensors(weights)
+    half = {}
+    for name, value in tensors.items():
+        if value.dtype.kind == "f":
+            if np.abs(value).max(initial=0.0) > np.finfo(np.float16).max:
+                raise FormatError(f"export_pretrained: {name} exceeds the float16 range")
+            half[name] = value.astype(np.float16)
+        else:
+            half[name] = value
+    meta.update({k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
+    save_safetensors(path, half, meta)
+    return os.fspath(path)

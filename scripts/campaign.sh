@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# The CPU training campaign of the shipped weights (docs/training.md), one stage at a time, in the
+# background at the lowest priority, resumed across sessions.
+#
+#   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
+#   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
+#   scripts/campaign.sh status        # last log lines and validation of the running stage
+#
+# The run uses a snapshot of the package (python/ and the built core) copied to ENGINE, so rebuilding
+# or editing the working tree never changes the code under a running process; `start` refreshes the
+# snapshot, so a stop + start switches the run to the current engine (checkpoints are engine-independent).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=${MIPNET_CAMPAIGN_ROOT:-$HOME/.cache/mipnet}
+ENGINE=$ROOT/engine
+PY=${PYTHON:-python}
+
+# stage -> the arguments of its first start (a resumed stage keeps its own settings)
+stage_args() {
+  case "$1" in
+    # 1: small crops and few iterations while matching emerges
+    s1-128x256) echo "--preset cpu --steps 20000 --crop 128 256 --batch-size 4 --iters 3 3 --lr 4e-4" ;;
+    # 2: larger crops, a wider disparity range, inference-like iterations, from stage 1's best weights
+    s2-192x384) echo "--preset cpu --steps 10000 --crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --init $ROOT/train/s1-128x256/best.safetensors" ;;
+    *) echo "unknown stage $1" >&2; exit 2 ;;
+  esac
+}
+
+case "${1:-}" in
+  start)
+    stage=${2:?stage name}
+    run=$ROOT/train/$stage
+    mkdir -p "$ROOT/train" "$ENGINE"
+    if pgrep -f "mipnet train" >/dev/null; then echo "a run is going: scripts/campaign.sh stop first" >&2; exit 1; fi
+    rm -rf "$ENGINE/mipnet.new" && cp -a python/mipnet "$ENGINE/mipnet.new"
+    rm -rf "$ENGINE/mipnet" && mv "$ENGINE/mipnet.new" "$ENGINE/mipnet"
+    if [ -d "$run/checkpoint" ] && ls "$run"/checkpoint/ckpt-*.safetensors >/dev/null 2>&1; then
+      args="--resume $run"
+    else
+      args="$(stage_args "$stage") --out $run"
+    fi
+    mkdir -p "$run"
+    echo "$(date -u +%FT%TZ) $PY -m mipnet train $args" >> "$run/commands.txt"
+    # shellcheck disable=SC2086
+    PYTHONPATH=$ENGINE MIPNET_NUM_THREADS=2 nohup nice -n 19 "$PY" -m mipnet train $args >> "$run/stdout.log" 2>&1 &
+    echo "started $stage (pid $!): $args"
+    ;;
+  stop)
+    pkill -TERM -f "mipnet train" && echo "SIGTERM sent; waiting for the checkpoint" || echo "no run"
+    while pgrep -f "mipnet train" >/dev/null; do sleep 2; done
+    ;;
+  status)
+    for run in "$ROOT"/train/*/; do
+      echo "== $run"; tail -n 2 "$run/log.jsonl" 2>/dev/null | cut -c1-300
+      grep '"val"' "$run/log.jsonl" 2>/dev/null | tail -n 1 | cut -c1-600
+    done
+    ;;
+  *) sed -n 2,11p "$0"; exit 2 ;;
+esac
