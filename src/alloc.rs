@@ -5,8 +5,11 @@
 //! 80 ms to fault in while its copy took 5 ms, and freeing it again (`munmap`) flushes the TLBs of
 //! every core. MIPNet allocates the same sizes over and over (every sub-update of a level has the same
 //! shapes), so freed large blocks are kept, already mapped, and handed out again for a request of the
-//! same size class (classes 25% apart, see [`class`]), at most `CACHE_BYTES` in all. Large blocks are
-//! also advised to be backed by transparent huge pages (Linux `MADV_HUGEPAGE`), as numpy does.
+//! same size class (classes 25% apart, see [`class`]). So that the cache does not raise the peak
+//! memory with sizes nobody asks for any more (the encoder's, once the iterations run), a block that
+//! was not reused within `CACHE_AGE` large allocations is freed, and the cache holds at most
+//! `CACHE_BYTES`. Large blocks are also advised to be backed by transparent huge pages (Linux
+//! `MADV_HUGEPAGE`), as numpy does.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::Mutex;
@@ -14,19 +17,27 @@ use std::sync::Mutex;
 /// Blocks from this size on are advised and cached.
 const HUGE_MIN: usize = 4 << 20;
 /// Most bytes the cache holds.
-const CACHE_BYTES: usize = 1 << 30;
+const CACHE_BYTES: usize = 512 << 20;
+/// Large allocations after which an unused cached block is freed (a sub-update of MIPNet makes
+/// about 40 to 80).
+const CACHE_AGE: u64 = 160;
 /// Most blocks the cache holds.
 const CACHE_SLOTS: usize = 64;
 /// Alignment of every cached block (malloc's own for large blocks).
 const ALIGN: usize = 16;
 
-/// Cached blocks: (bytes, address), oldest first; address 0 marks a free slot.
+/// Cached blocks: (bytes, address, tick when cached); address 0 marks a free slot. `tick` counts
+/// large allocations.
 struct Cache {
-    slots: [(usize, usize); CACHE_SLOTS],
+    slots: [(usize, usize, u64); CACHE_SLOTS],
     bytes: usize,
+    tick: u64,
 }
 
-static CACHE: Mutex<Cache> = Mutex::new(Cache { slots: [(0, 0); CACHE_SLOTS], bytes: 0 });
+static CACHE: Mutex<Cache> = Mutex::new(Cache { slots: [(0, 0, 0); CACHE_SLOTS], bytes: 0, tick: 0 });
+
+/// Blocks the cache gave up, to free once its lock is released.
+type Freed = [(usize, *mut u8); CACHE_SLOTS + 1];
 
 /// Bytes reserved for a large request of `size`: the smallest class c_k >= size, with c_0 = HUGE_MIN
 /// and c_{k+1} = c_k · 5/4 rounded up to 64 KiB, so that near sizes share blocks. A block only
@@ -40,36 +51,53 @@ fn class(size: usize) -> usize {
 }
 
 impl Cache {
-    /// A cached block of exactly `bytes` (a class size), removed from the cache.
-    fn take(&mut self, bytes: usize) -> Option<*mut u8> {
-        let i = (0..CACHE_SLOTS).find(|&i| self.slots[i].1 != 0 && self.slots[i].0 == bytes)?;
-        let (size, addr) = std::mem::replace(&mut self.slots[i], (0, 0));
-        self.bytes -= size;
-        Some(addr as *mut u8)
+    /// Counts one large allocation; a cached block of exactly `bytes` (a class size), removed from
+    /// the cache; and the blocks that aged out, to free.
+    fn take(&mut self, bytes: usize) -> (Option<*mut u8>, Freed) {
+        self.tick += 1;
+        let hit = (0..CACHE_SLOTS).find(|&i| self.slots[i].1 != 0 && self.slots[i].0 == bytes).map(|i| {
+            let (size, addr, _) = std::mem::replace(&mut self.slots[i], (0, 0, 0));
+            self.bytes -= size;
+            addr as *mut u8
+        });
+        (hit, self.expire())
     }
 
-    /// Keeps the block unless it does not fit; returns the blocks to free (at most two: the evicted
-    /// oldest and, if it still does not fit, the block itself).
-    fn put(&mut self, bytes: usize, ptr: *mut u8) -> [(usize, *mut u8); 2] {
-        let mut out = [(0, std::ptr::null_mut()); 2];
-        if bytes > CACHE_BYTES {
-            out[0] = (bytes, ptr);
-            return out;
-        }
+    /// Keeps a freed block if it fits; returns what to free (aged-out blocks, the largest cached one
+    /// when full, or the block itself).
+    fn put(&mut self, bytes: usize, ptr: *mut u8) -> Freed {
+        let mut out = self.expire();
+        let mut n = out.iter().position(|b| b.1.is_null()).unwrap_or(CACHE_SLOTS);
         if self.bytes + bytes > CACHE_BYTES || self.slots.iter().all(|s| s.1 != 0) {
             // evict the largest cached block (frees the most with one munmap)
             if let Some(i) = (0..CACHE_SLOTS).filter(|&i| self.slots[i].1 != 0).max_by_key(|&i| self.slots[i].0) {
-                let (size, addr) = std::mem::replace(&mut self.slots[i], (0, 0));
+                let (size, addr, _) = std::mem::replace(&mut self.slots[i], (0, 0, 0));
                 self.bytes -= size;
-                out[0] = (size, addr as *mut u8);
+                out[n] = (size, addr as *mut u8);
+                n += 1;
             }
         }
         match self.slots.iter().position(|s| s.1 == 0) {
             Some(i) if self.bytes + bytes <= CACHE_BYTES => {
-                self.slots[i] = (bytes, ptr as usize);
+                self.slots[i] = (bytes, ptr as usize, self.tick);
                 self.bytes += bytes;
             }
-            _ => out[1] = (bytes, ptr),
+            _ => out[n] = (bytes, ptr),
+        }
+        out
+    }
+
+    /// Removes the blocks cached more than CACHE_AGE large allocations ago.
+    fn expire(&mut self) -> Freed {
+        let mut out: Freed = [(0, std::ptr::null_mut()); CACHE_SLOTS + 1];
+        let mut n = 0;
+        for slot in self.slots.iter_mut() {
+            if slot.1 != 0 && slot.2 + CACHE_AGE < self.tick {
+                out[n] = (slot.0, slot.1 as *mut u8);
+                n += 1;
+                self.bytes -= slot.0;
+                *slot = (0, 0, 0);
+            }
         }
         out
     }
@@ -82,11 +110,13 @@ fn large(layout: &Layout) -> bool {
     layout.size() >= HUGE_MIN && layout.align() <= ALIGN
 }
 
-/// Frees a block of `bytes` reserved by [`HugePageAlloc`] (null: nothing).
-fn release(bytes: usize, ptr: *mut u8) {
-    if !ptr.is_null() {
-        // SAFETY: `ptr` was returned by System.alloc with exactly this size and alignment.
-        unsafe { System.dealloc(ptr, Layout::from_size_align_unchecked(bytes, ALIGN)) }
+/// Frees blocks reserved by [`HugePageAlloc`] (null entries: nothing).
+fn release_all(blocks: Freed) {
+    for (bytes, ptr) in blocks {
+        if !ptr.is_null() {
+            // SAFETY: `ptr` was returned by System.alloc with exactly this size and alignment.
+            unsafe { System.dealloc(ptr, Layout::from_size_align_unchecked(bytes, ALIGN)) }
+        }
     }
 }
 
@@ -101,7 +131,9 @@ unsafe impl GlobalAlloc for HugePageAlloc {
             return unsafe { System.alloc(layout) };
         }
         let bytes = class(layout.size());
-        if let Some(p) = CACHE.lock().unwrap_or_else(|e| e.into_inner()).take(bytes) {
+        let (hit, freed) = CACHE.lock().unwrap_or_else(|e| e.into_inner()).take(bytes);
+        release_all(freed);
+        if let Some(p) = hit {
             return p;
         }
         // SAFETY: non-zero size, valid power-of-two alignment.
@@ -116,7 +148,9 @@ unsafe impl GlobalAlloc for HugePageAlloc {
             return unsafe { System.alloc_zeroed(layout) };
         }
         let bytes = class(layout.size());
-        if let Some(p) = CACHE.lock().unwrap_or_else(|e| e.into_inner()).take(bytes) {
+        let (hit, freed) = CACHE.lock().unwrap_or_else(|e| e.into_inner()).take(bytes);
+        release_all(freed);
+        if let Some(p) = hit {
             // SAFETY: the cached block has `bytes` >= layout.size() writable bytes, owned by us now.
             unsafe { std::ptr::write_bytes(p, 0, layout.size()) };
             return p;
@@ -155,9 +189,7 @@ unsafe impl GlobalAlloc for HugePageAlloc {
             return unsafe { System.dealloc(ptr, layout) };
         }
         let freed = CACHE.lock().unwrap_or_else(|e| e.into_inner()).put(class(layout.size()), ptr);
-        for (bytes, p) in freed {
-            release(bytes, p);
-        }
+        release_all(freed);
     }
 }
 

@@ -8,7 +8,8 @@ hint) and ``onnxruntime`` (CPU), both running the torch reference exported by ``
 OpenVINO and onnxruntime are bench extras (``pip install ".[bench]"``); an engine that is not
 installed is listed as such. Eval rows time the forward pass (6+6 iterations) after one untimed run;
 train rows time one step (forward, sequence loss, backward, AdamW) for mipnet and torch. Each
-measurement runs in a fresh subprocess, so its peak resident memory (ru_maxrss) is that run's alone.
+measurement runs in a fresh subprocess that imports only its own engine (mipnet reads the reference's
+initial weights from a file), so its peak resident memory (ru_maxrss) is that engine's alone.
 Before any time is printed, the disparities of every engine are checked against mipnet's (at most
 1e-3 px apart) and the training losses of mipnet and torch against each other (1e-2 relative).
 ``--profile`` adds mipnet's profiler table (``mipnet.profiler``) for the first eval size and the first
@@ -82,12 +83,6 @@ _CHILD = r"""
 import json, resource, sys, time
 import numpy as np
 a = json.loads(sys.argv[1])
-sys.path.insert(0, a["ref_dir"])
-import torch
-torch.set_num_threads(a["threads"])
-from reference import MIPNetTorch, sequence_loss_torch
-torch.manual_seed(0)
-ref = MIPNetTorch()
 n, h, w, iters = a["n"], a["h"], a["w"], tuple(a["iters"])
 rng = np.random.default_rng(0)
 left = rng.uniform(0, 255, (n, 3, h, w)).astype(np.float32)
@@ -97,11 +92,12 @@ gt = np.full((n, 1, h, w), 4.0, np.float32)
 engine, mode = a["engine"], a["mode"]
 profile = None
 if engine == "mipnet":
+    # the reference's initial weights, from the file the parent wrote (torch is not imported here)
     import mipnet
     mipnet.set_num_threads(a["threads"])
     model = mipnet.MIPNet()
-    model.load_state_dict({k: v.numpy() for k, v in ref.state_dict().items()})
-    del ref
+    with np.load(a["weights"]) as f:
+        model.load_state_dict({k: f[k] for k in f.files})
     if mode == "eval":
         model.eval()
         run = lambda: model(left, right, iters=iters, disp_init=d0)
@@ -116,6 +112,12 @@ if engine == "mipnet":
                 opt.step()
             return np.asarray(loss.item())
 elif engine == "torch":
+    import torch
+    torch.set_num_threads(a["threads"])
+    sys.path.insert(0, a["ref_dir"])
+    from reference import MIPNetTorch, sequence_loss_torch
+    torch.manual_seed(0)
+    ref = MIPNetTorch()
     if mode == "eval":
         ref.eval()
         def run():
@@ -132,7 +134,6 @@ elif engine == "torch":
             opt.step()
             return np.asarray(loss.item())
 else:
-    del ref
     feeds = {"left": left, "right": right, "disp_init": d0}
     if engine == "openvino":
         import openvino as ov
@@ -157,6 +158,18 @@ else:
 np.save(a["out"], np.asarray(out))
 print(json.dumps({"seconds": seconds, "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "table": profile.table() + "\n\n" + profile.scope_table() if profile is not None else None}))
+"""
+
+# Writes the torch reference's initial weights (seed 0) for the mipnet children.
+_WEIGHTS = r"""
+import json, sys
+import numpy as np
+import torch
+a = json.loads(sys.argv[1])
+sys.path.insert(0, a["ref_dir"])
+from reference import MIPNetTorch
+torch.manual_seed(0)
+np.savez(a["weights"], **{k: v.numpy() for k, v in MIPNetTorch().state_dict().items()})
 """
 
 # Exports the torch reference's eval forward (fixed size, iterations unrolled) to ONNX, opset 17.
@@ -224,7 +237,12 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
         print(f"not installed (pip install \".[bench]\"): {', '.join(missing)}")
     rows, status = [], 0
     with tempfile.TemporaryDirectory(prefix="mipnet-bench-") as tmp:
-        base = {"ref_dir": str(ref_dir), "threads": threads, "warmup": warmup, "runs": 1, "profile": False}
+        base = {"ref_dir": str(ref_dir), "threads": threads, "warmup": warmup, "runs": 1, "profile": False,
+                "weights": os.path.join(tmp, "weights.npz")}
+        err = _child(_WEIGHTS, base, threads).get("error")
+        if err:
+            print(f"mipnet.bench model: could not build the reference weights: {err}", file=sys.stderr)
+            return 1
         for h, w in sizes:
             case = {**base, "mode": "eval", "n": 1, "h": h, "w": w, "iters": [6, 6]}
             onnx = os.path.join(tmp, f"mipnet_{h}x{w}.onnx")

@@ -7,7 +7,7 @@ key table (f.2) and weights move unchanged between mipnet and PyTorch.
 from __future__ import annotations
 
 from . import ops
-from .autograd import checkpoint
+from .autograd import checkpoint, is_grad_enabled
 from .nn import BatchNorm2d, Conv2d, InstanceNorm2d, Module, Sequential, init
 from .tensor import Tensor
 
@@ -149,13 +149,31 @@ class RLSMotionEncoder(Module):
         return self.out(ops.cat_relu([a, b], [True, True], 1))
 
 
-def _gru_pass(convz: Conv2d, convr: Conv2d, convq: Conv2d, hx: Tensor, keep_x: bool) -> Tensor:
+def _stacked_zr(owner: Module, convz: Conv2d, convr: Conv2d) -> tuple[Tensor, Tensor]:
+    """convz's and convr's weights and biases stacked along the output channels. While gradients are
+    recorded, one stack serves every call of a forward pass (each call's convolution would otherwise
+    keep its own copy for the backward); it is rebuilt once its backward has run or the weights are
+    new arrays (an optimiser step)."""
+    params = (convz.weight, convr.weight, convz.bias, convr.bias)
+    key = tuple(id(p.data) for p in params)
+    cache = owner.__dict__.setdefault("_zr_stack", {})
+    hit = cache.get(id(convz))
+    if hit is not None and hit[0] == key and all(t._node is not None and t._node.fn is not None for t in hit[1]):
+        return hit[1]
+    stack = (ops.cat([convz.weight, convr.weight], 0), ops.cat([convz.bias, convr.bias], 0))
+    if is_grad_enabled() and all(t._node is not None for t in stack):
+        cache[id(convz)] = (key, stack)
+    else:
+        cache.pop(id(convz), None)
+    return stack
+
+
+def _gru_pass(owner: Module, convz: Conv2d, convr: Conv2d, convq: Conv2d, hx: Tensor, keep_x: bool) -> Tensor:
     """One GRU pass on hx = [h, x]: z = σ(Wz hx); r = σ(Wr hx); q = tanh(Wq [r h, x]);
     h' = (1 - z) h + z q. z and r come from one convolution (convz's and convr's weights stacked
     along the output channels: one GEMM), the gate arithmetic from two fused kernels. Returns h', or
     [h', x] (the next pass's input) with ``keep_x``."""
-    w = ops.cat([convz.weight, convr.weight], 0)
-    b = ops.cat([convz.bias, convr.bias], 0)
+    w, b = _stacked_zr(owner, convz, convr)
     zr = ops.conv2d(hx, w, b, convz.stride, convz.padding)
     q = convq(ops.gru_reset(zr, hx))
     return ops.gru_update(zr, q, hx, keep_x)
@@ -171,7 +189,7 @@ class ConvGRU(Module):
         self.convq = Conv2d(hidden + inp, hidden, 3, padding=1)
 
     def forward(self, hx: Tensor) -> Tensor:
-        return _gru_pass(self.convz, self.convr, self.convq, hx, keep_x=False)
+        return _gru_pass(self, self.convz, self.convr, self.convq, hx, keep_x=False)
 
 
 class SepConvGRU(Module):
@@ -189,8 +207,8 @@ class SepConvGRU(Module):
         self.convq_v = Conv2d(c, hidden, (5, 1), padding=(2, 0))
 
     def forward(self, hx: Tensor) -> Tensor:
-        hx = _gru_pass(self.convz_h, self.convr_h, self.convq_h, hx, keep_x=True)
-        return _gru_pass(self.convz_v, self.convr_v, self.convq_v, hx, keep_x=False)
+        hx = _gru_pass(self, self.convz_h, self.convr_h, self.convq_h, hx, keep_x=True)
+        return _gru_pass(self, self.convz_v, self.convr_v, self.convq_v, hx, keep_x=False)
 
 
 class DispHead(Module):

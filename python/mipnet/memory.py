@@ -137,24 +137,30 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
         return {"live": live, "allocator": live * ((EVAL_HEAP_FACTOR if heap_sized else EVAL_MMAP_FACTOR) - 1)}
 
     # ---- training: what the forward saves for backward (each array once, however many ops save it)
-    per_block = 16 if cfg.use_aff else 6  # x channels of one ResBlock with output channels c (see below)
     # stem: conv input (3 at 1/1), norm input and ReLU output (64 + 64 at 1/2). A ResBlock of c output
-    # channels keeps norm1/norm2/norm3 inputs, y1, y2 and its output (6c); iAFF adds per MS-CAM its
-    # input, two c/4 branch activations, the bn2 input and the sigmoid (3.5c), per gate 1 - w (c), and x' (c)
+    # channels keeps norm1/norm2/norm3 inputs, y1, y2 and its output (6c); with iAFF also x' (c), the
+    # input of iAFF's checkpoint (its own activations are recomputed in the backward)
+    per_block = 7 if cfg.use_aff else 6
     encoder = (level(3, 1, 2 * batch) + level(128 + 2 * per_block * 64, 2, 2 * batch)
                + level(per_block * (2 * 96 + 2 * 128), 4, 2 * batch))
-    # per level, shared by all its iterations: F_L (both correlations), the seed stack (IP grid_sample),
-    # F_R (RLS grid_sample); at 1/4 also tanh / ReLU of hidden and context, at 1/16 the pooled hidden
-    shared = (256 + (1280 if cfg.use_ip else 0) + (256 if cfg.use_rls else 0))
-    levels = level(shared + 256, 4) + level(shared + 128, 16)
-    # one IP call: grid (2), warped stack (1280); motion encoder conv inputs (10 + 2 + 128) and ReLUs
-    # (96 + 64 + 32 + 94); ConvGRU [h, x] and [r h, x] (2 x 352), z, r, q, 1 - z (4 x 128); head input
-    # h' (128), disp / mask head ReLUs (128 + 256); the prediction's f_x and convex mask (1 + 144)
-    ip_call = (2 + 1280) + (140 + 286) + (2 * 352 + 4 * 128) + (128 + 128 + 256) + 145
-    # one RLS call: grid (2), warped F_R (256); motion conv inputs (corr + 2 + 192) and ReLUs
-    # (64 + 128 + 64 + 64 + 126); SepConvGRU, two steps of [h, x], [r h, x] (2 x 384), z, r, q, 1 - z,
-    # plus the first step's h (128); h' (128), head ReLUs (256 + 256); the prediction (1 + 144)
-    rls_call = (2 + 256) + (corr_rls + 194 + 446) + (2 * (2 * 384 + 4 * 128) + 128) + (128 + 512) + 145
+    fused = cfg.vertical_constraint
+    if fused:
+        # the fused warp + correlations keep channels-last F_L and F_R per level, and each call its f_x
+        shared, warp_ip, warp_rls = 512, 1, 1
+    else:
+        # F_L (both correlations), the seed stack (IP grid_sample), F_R (RLS grid_sample); per call the
+        # grid (2) and the warped map (1280 / 256)
+        shared, warp_ip, warp_rls = 256 + (1280 if cfg.use_ip else 0) + (256 if cfg.use_rls else 0), 2 + 1280, 2 + 256
+    # at 1/4 also tanh / ReLU of hidden and context; at 1/16 (unfused) the pooled hidden
+    levels = level(shared + 256, 4) + level(shared + (0 if fused else 128), 16)
+    # one IP call: the warp's (see above); motion encoder conv inputs (10 + 2), flow1's ReLU (64) and the
+    # ReLU'd cat (128); ConvGRU [h, x] and [r h, x] (2 x 352), the z/r pre-activations (256) and q's (128);
+    # head input h' (128), the disp head's ReLU (128); the prediction's checkpoint input, the flow (2)
+    ip_call = warp_ip + (12 + 64 + 128) + (2 * 352 + 256 + 128) + (128 + 128) + 2
+    # one RLS call: the warp's; motion conv inputs (corr + 2), the corr1 / flow1 ReLUs (64 + 64) and the
+    # ReLU'd cat (192); SepConvGRU, per pass [h, x], [r h, x] (2 x 384), z/r and q pre-activations
+    # (256 + 128); h' (128), the disp head's ReLU (256); the flow (2)
+    rls_call = warp_rls + (corr_rls + 2 + 128 + 192) + 2 * (2 * 384 + 256 + 128) + (128 + 256) + 2
     per_iter = (ip_call if cfg.use_ip else 0) + (rls_call if cfg.use_rls else 0)
     updates = level(per_iter * n16, 16) + level(per_iter * n4, 4)
     # the loss keeps each full-resolution prediction (1 channel) and the target and mask (~1.25)
@@ -163,7 +169,9 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     # backward, on top of the saved tensors while they are freed: the gradients accumulated for the
     # tensors all 1/4 iterations read (shared, hidden and context) and those flowing through one update
     backward = level(shared + 256 + max(ip_call if cfg.use_ip else 0, rls_call if cfg.use_rls else 0), 4)
-    return {"encoder": encoder, "levels": levels, "updates": updates, "loss": loss, "backward": backward}
+    # one stack of convz and convr weights per GRU pass, kept by its convolutions (shared by all calls)
+    stacked = itemsize * 256 * (((352 * 9 + 1) if cfg.use_ip else 0) + (2 * (384 * 5 + 1) if cfg.use_rls else 0))
+    return {"encoder": encoder, "levels": levels, "updates": updates, "loss": loss, "stacked": stacked, "backward": backward}
 
 
 def model_bytes(model: Any = None, itemsize: int = 4) -> int:
