@@ -25,6 +25,8 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("run", help="run folder of mipnet train")
     p.add_argument("--weights", default="best.safetensors", help="file in the run folder (default best.safetensors)")
+    p.add_argument("--validation", help="JSON of {'trained': table, 'sgbm': table} measured on these weights "
+                                        "(default: the run's own validation at the weights' step)")
     args = p.parse_args()
     source = os.path.join(args.run, args.weights)
     _, meta = load_safetensors(source)
@@ -32,6 +34,9 @@ def main() -> int:
     records = TrainLog(os.path.join(args.run, "log.jsonl")).records()
     validation = next((r["val"] for r in records if "val" in r and r["step"] == step), None)
     sgbm = next((r["val_sgbm"] for r in records if "val_sgbm" in r), None)
+    if args.validation:
+        measured = json.load(open(args.validation))
+        validation, sgbm = measured["trained"], measured["sgbm"]
     config = json.loads(meta["train_config"])
     commands_path = os.path.join(args.run, "commands.txt")
     commands = open(commands_path).read().strip().splitlines() if os.path.exists(commands_path) else []

@@ -29,7 +29,7 @@ def test_infer_globs_write_every_output_with_calibration(pairs_dir, tmp_path, ca
     out = tmp_path / "out"
     assert main(["infer", "-l", str(pairs_dir / "*_left.png"), "-r", str(pairs_dir / "*_right.png"),
                  "-o", str(out), "--iters", "1", "1", "--calib", str(calib)]) == 0
-    assert "UNTRAINED" in capsys.readouterr().err
+    assert "UNTRAINED" not in capsys.readouterr().err  # the shipped weights
     for i in range(2):
         stem = out / f"scene{i}_left"
         disp = np.load(f"{stem}_disp.npy")
@@ -43,10 +43,30 @@ def test_infer_globs_write_every_output_with_calibration(pairs_dir, tmp_path, ca
     assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
 
 
-def test_infer_without_images_uses_the_bundled_example(tmp_path, capsys):
+def test_infer_without_images_runs_the_shipped_weights_on_the_bundled_example(tmp_path, capsys):
     assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1"]) == 0
-    assert np.load(tmp_path / "example_left_disp.npy").shape == (240, 320)
+    disp = np.load(tmp_path / "example_left_disp.npy")
+    from mipnet.cli import EXAMPLE_LEFT, EXAMPLE_RIGHT
+
+    expected = mipnet.MIPNet.pretrained()(io.read_image(EXAMPLE_LEFT), io.read_image(EXAMPLE_RIGHT), iters=(1, 1))
+    np.testing.assert_array_equal(disp, expected)
+    assert "UNTRAINED" not in capsys.readouterr().err
+
+
+def test_an_installation_without_weights_says_it_runs_untrained(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(mipnet.pretrained, "PRETRAINED_PATH", tmp_path / "absent.safetensors")
+    assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1"]) == 0
     assert "UNTRAINED" in capsys.readouterr().err
+
+
+def test_shipped_weights_are_float16_with_their_provenance():
+    from mipnet.weights import load_safetensors
+
+    tensors, meta = load_safetensors(mipnet.pretrained.PRETRAINED_PATH)
+    assert {a.dtype for a in tensors.values() if a.dtype.kind == "f"} == {np.dtype(np.float16)}
+    assert int(meta["step"]) > 0 and "generated scenes" in meta["trained"] and "validation" in meta
+    model = mipnet.MIPNet.pretrained()
+    assert not model.training and model.dtype == np.float32
 
 
 def test_infer_with_saved_weights_matches_the_python_api(pairs_dir, tmp_path):
@@ -65,7 +85,7 @@ def test_eval_prints_mipnet_and_sgbm_rows(capsys):
     assert main(["eval", "--dataset", "synthetic-underwater", "--preset", "low_light", "--n", "2",
                  "--size", "64", "96", "--iters", "1", "1"]) == 0
     out = capsys.readouterr().out
-    assert "MIPNet (untrained)" in out and "SGBM (full coverage)" in out and "SGBM (covered)" in out
+    assert "MIPNet " in out and "(untrained)" not in out and "SGBM (full coverage)" in out and "SGBM (covered)" in out
 
 
 def test_info_and_python_dash_m_entry_point():
