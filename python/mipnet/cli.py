@@ -14,7 +14,6 @@ import errno
 import glob
 import os
 import sys
-import time
 import traceback
 from pathlib import Path
 from typing import Callable, Sequence
@@ -67,25 +66,12 @@ def describe_weights(weights: str | None) -> list[str]:
     return lines
 
 
-class Progress:
-    """A progress bar on a terminal; one line per step otherwise (logs, CI)."""
+def progress_bar(total: int, label: str):
+    """A tqdm bar on stderr (pairs done, rate, ETA); on a non-terminal it updates at most every 30 s."""
+    from tqdm.auto import tqdm
 
-    def __init__(self, total: int, label: str):
-        self.total, self.label, self.done, self.start = total, label, 0, time.perf_counter()
-        self.tty = sys.stderr.isatty()
-
-    def step(self, name: str) -> None:
-        self.done += 1
-        elapsed = time.perf_counter() - self.start
-        if self.tty:
-            filled = int(30 * self.done / self.total)
-            sys.stderr.write(f"\r{self.label} [{'#' * filled}{'.' * (30 - filled)}] {self.done}/{self.total} "
-                             f"{elapsed:6.1f}s {name[:40]:<40}")
-            if self.done == self.total:
-                sys.stderr.write("\n")
-        else:
-            sys.stderr.write(f"{self.label} {self.done}/{self.total} {name} ({elapsed:.1f}s)\n")
-        sys.stderr.flush()
+    return tqdm(total=total, desc=label, unit="pair", file=sys.stderr, dynamic_ncols=True,
+                mininterval=0.5 if sys.stderr.isatty() else 30.0)
 
 
 #: What a user can cause (bad files, options, sizes, too little memory): one line, exit status 2.
@@ -214,10 +200,11 @@ def cmd_infer(args: argparse.Namespace) -> int:
         print(f"wrote 1 disparity map to {out}/")
         return 0
     failures = Failures("mipnet infer", args.debug)
-    progress = Progress(len(lefts), "infer")
-    for lp, rp in zip(lefts, rights):
-        failures.attempt((lp, rp), infer_pair, lp, rp)
-        progress.step(Path(lp).name)
+    with progress_bar(len(lefts), "infer") as progress:
+        for lp, rp in zip(lefts, rights):
+            failures.attempt((lp, rp), infer_pair, lp, rp)
+            progress.set_postfix_str(Path(lp).name, refresh=False)
+            progress.update(1)
     print(f"wrote {len(lefts) - len(failures.items)} disparity map(s) to {out}/")
     return failures.report(len(lefts))
 
@@ -323,16 +310,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
     rows = []
     if "mipnet" in methods:
         model = load_model(args.weights)
-        progress = Progress(count, "mipnet")
+        with progress_bar(count, "mipnet") as progress:
+            def predict(left, right):
+                disp = model(left, right, iters=tuple(args.iters))
+                progress.update(1)
+                return disp
 
-        def predict(left, right):
-            disp = model(left, right, iters=tuple(args.iters))
-            progress.step("")
-            return disp
-
-        trained = bool(args.weights) or pretrained.available()
-        rows.append(result_row("MIPNet" + ("" if trained else " (untrained)"),
-                               evaluate_method(pairs(), predict, on_error=on_error), args.aggregation))
+            trained = bool(args.weights) or pretrained.available()
+            rows.append(result_row("MIPNet" + ("" if trained else " (untrained)"),
+                                   evaluate_method(pairs(), predict, on_error=on_error), args.aggregation))
     if "sgbm" in methods:
         full, covered = sgbm_rows(pairs(), aggregation=args.aggregation, on_error=on_error)
         rows += [{**full, "method": "SGBM (full coverage)"}, {**covered, "method": "SGBM (covered)"}]

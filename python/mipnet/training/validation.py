@@ -57,9 +57,9 @@ def validate_sgbm(sets: dict) -> dict | None:
     return out
 
 
-def format_validation(step: int, table: dict, reference: dict | None = None) -> str:
+def format_validation(step: int | None, table: dict, reference: dict | None = None) -> str:
     """One line per set: mipnet's metrics (and SGBM's in brackets)."""
-    lines = [f"validation at step {step}:"]
+    lines = ["validation" + (f" at step {step}:" if step is not None else ":")]
     for name, m in table.items():
         ref = reference.get(name) if reference else None
         cells = [f"{k} {m[k]:.3f}" + (f" [sgbm {ref[k]:.3f}]" if ref else "") for k in METRICS]
