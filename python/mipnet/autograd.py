@@ -19,6 +19,8 @@ from . import _core
 from . import profiler as _profiler
 from .errors import DTypeError
 
+__all__ = ["is_grad_enabled", "no_grad", "enable_grad", "Context", "Function", "checkpoint", "backward"]
+
 _state = threading.local()
 
 

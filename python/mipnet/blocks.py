@@ -11,6 +11,9 @@ from .autograd import checkpoint, is_grad_enabled
 from .nn import BatchNorm2d, Conv2d, InstanceNorm2d, Module, Sequential, init
 from .tensor import Tensor
 
+__all__ = ["MSCAMBranch", "MSCAM", "IAFF", "ResBlock", "Stem", "Encoder", "IPMotionEncoder", "RLSMotionEncoder", "ConvGRU",
+           "SepConvGRU", "DispHead", "MaskHead", "UpdateBlock", "ip_update_block", "rls_update_block"]
+
 
 class MSCAMBranch(Module):
     """conv1 1x1 c->c/r, BN, ReLU, conv2 1x1 c/r->c, BN: one branch of MS-CAM (spec a.3)."""

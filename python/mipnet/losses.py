@@ -10,6 +10,8 @@ from . import ops
 from .errors import ArgumentError, ShapeError
 from .tensor import Tensor
 
+__all__ = ["valid_mask", "sequence_loss", "sequence_metrics"]
+
 
 def _as_n1hw(a: Any, name: str, like: Tensor) -> np.ndarray:
     arr = np.asarray(a.numpy() if isinstance(a, Tensor) else a)

@@ -23,6 +23,8 @@ from .nn import BatchNorm2d, Module
 from .random import default_generator
 from .tensor import Tensor
 
+__all__ = ["MIPNet", "MIPNetConfig", "load", "gamma_draw"]
+
 DIVISOR = 16  # H and W of the padded input must be multiples of 16 (stride 4 encoder x 4x4 pooling)
 MIN_SIZE = 32
 

@@ -27,6 +27,8 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
+__all__ = ["Profile", "profile", "scope", "record"]
+
 #: The active profile, or None. Read by the dispatch layer on every op.
 ACTIVE: "Profile | None" = None
 

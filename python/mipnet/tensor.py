@@ -8,6 +8,8 @@ import numpy as np
 
 from .errors import DTypeError
 
+__all__ = ["Tensor", "tensor"]
+
 _FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 

@@ -18,6 +18,8 @@ import numpy as np
 from ._fileutil import atomic_write
 from .errors import FormatError
 
+__all__ = ["save_safetensors", "load_safetensors"]
+
 _DTYPES = {"F32": np.float32, "F64": np.float64, "F16": np.float16, "I64": np.int64, "I32": np.int32,
            "I16": np.int16, "I8": np.int8, "U8": np.uint8, "BOOL": np.bool_}
 _NAMES = {np.dtype(v): k for k, v in _DTYPES.items()}
