@@ -13,11 +13,11 @@
 //!         for jr in 0..NC step NR:        micro-kernel: MR x NR tile of C in registers, NR columns of B
 //! ```
 //!
-//! Every element of C is one chain of multiply-adds over k in increasing order, started from 0,
-//! from beta·C or from its bias, and continued across K blocks by reloading C: the result does
-//! not depend on the block sizes, the micro-kernel shape or how callers tile C (so not on the
-//! thread count either), and it is bitwise the same on the AVX-512 and AVX2 paths (both fuse the
-//! multiply-add); the portable path rounds the product and the sum separately.
+//! Every element of C is its initial value (0, beta·C or its bias) plus, in increasing k, the
+//! sums of runs of 64 multiply-adds (`kernel::SUB_K`, a chain each, added to C in turn): the
+//! result does not depend on the block sizes, the micro-kernel shape or how callers tile C (so not
+//! on the thread count either), and it is bitwise the same on the AVX-512 and AVX2 paths (both
+//! fuse the multiply-add); the portable path rounds the product and the sum separately.
 
 mod cpu;
 mod isa;
@@ -147,10 +147,11 @@ pub struct Plan<E> {
 /// f32 on AVX-512 (8 x 48): Sapphire/Emerald Rapids (48 KiB L1d, 2 MiB L2) KC 768, NC 336; Zen 4
 /// (32 KiB, 1 MiB) KC 512, NC 240: the same 16 KiB A micro-panel in L1 and 0.5 MiB B block in
 /// L2 as BLIS's zen4 sgemm (its 480 x 12 B micro-panel, 512 x 480 A block, roles transposed).
-/// AVX2 (4 x 24) on a 32 KiB / 256 KiB core (Haswell..Skylake client): KC 336, NC 96.
+/// AVX2 (4 x 24) on a 32 KiB / 256 KiB core (Haswell..Skylake client): KC 320, NC 96.
 pub fn blocking(es: usize, mr: usize, nr: usize, l1d: usize, l2: usize, l3_share: usize) -> (usize, usize, usize) {
-    // KC = min((L1d / 2) / (MR · es), (L2 / 2) / (4 · NR · es)), a multiple of 8, in [64, 1024]
-    let kc = ((l1d / 2 / (mr * es)).min(l2 / 2 / (4 * nr * es)) / 8 * 8).clamp(64, 1024);
+    // KC = min((L1d / 2) / (MR · es), (L2 / 2) / (4 · NR · es)), a multiple of SUB_K, in [64, 1024]
+    let sub = kernel::SUB_K;
+    let kc = ((l1d / 2 / (mr * es)).min(l2 / 2 / (4 * nr * es)) / sub * sub).clamp(sub, 1024);
     // NC = (L2 / 2) / (KC · es), whole NR panels, at least one
     let nc = (l2 / 2 / (kc * es) / nr * nr).max(nr);
     // MC = (share / 2) / (KC · es), whole MR panels, in [8 MR, 4096]
@@ -217,11 +218,13 @@ impl<E: Float> Plan<E> {
         }
     }
 
-    /// The depth of the K blocks of a product of depth k: KC, or less so that the blocks are equal
-    /// (3168 = 5 x 640 rather than 4 x 768 + 96), a multiple of 8.
+    /// The depth of the K blocks of a product of depth k: KC, or less so that the blocks are about
+    /// equal (3168 = 4 x 640 + 608 rather than 4 x 768 + 96), a multiple of the micro-kernel's
+    /// runs (`SUB_K`), which the blocks must not split for results independent of the blocking.
     pub fn kc_for(&self, k: usize) -> usize {
-        // ceil(k / blocks) rounded up to 8, blocks = ceil(k / KC)
-        k.div_ceil(k.div_ceil(self.kc).max(1)).next_multiple_of(8).clamp(8, self.kc.max(8))
+        let (sub, cap) = (kernel::SUB_K, (self.kc / kernel::SUB_K).max(1) * kernel::SUB_K);
+        // ceil(k / blocks) rounded up to SUB_K, blocks = ceil(k / cap)
+        k.div_ceil(k.div_ceil(cap).max(1)).next_multiple_of(sub).clamp(sub, cap)
     }
 
     /// The width of the column blocks of a product with n columns: NC, or less so that the blocks

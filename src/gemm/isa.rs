@@ -116,6 +116,8 @@ pub(crate) unsafe trait Simd<E: Copy>: Copy {
     unsafe fn load(p: *const E) -> Self::V;
     /// Stores `LANES` elements to `p` (any alignment).
     unsafe fn store(p: *mut E, v: Self::V);
+    /// a + b.
+    unsafe fn add(a: Self::V, b: Self::V) -> Self::V;
     /// a · b + c, rounded once where the ISA has FMA.
     unsafe fn fma(a: Self::V, b: Self::V, c: Self::V) -> Self::V;
     /// max(a, 0) per lane; NaN gives 0, as `Float::max` in the relu op.
@@ -140,7 +142,7 @@ pub(crate) struct Generic;
 #[cfg(target_arch = "x86_64")]
 macro_rules! x86_simd {
     ($isa:ty, $e:ty, $v:ty, $lanes:expr, zero $zero:ident, set1 $set1:ident, loadu $loadu:ident, storeu $storeu:ident,
-     fmadd $fmadd:ident, max $max:ident, sum $sum:expr) => {
+     add $add:ident, fmadd $fmadd:ident, max $max:ident, sum $sum:expr) => {
         // SAFETY: every method is an intrinsic of the ISA; callers guarantee the CPU supports it.
         unsafe impl Simd<$e> for $isa {
             type V = $v;
@@ -164,6 +166,11 @@ macro_rules! x86_simd {
             unsafe fn store(p: *mut $e, v: $v) {
                 // SAFETY: as above; the caller passes `LANES` writable elements.
                 unsafe { std::arch::x86_64::$storeu(p, v) }
+            }
+            #[inline(always)]
+            unsafe fn add(a: $v, b: $v) -> $v {
+                // SAFETY: as above.
+                unsafe { std::arch::x86_64::$add(a, b) }
             }
             #[inline(always)]
             unsafe fn fma(a: $v, b: $v, c: $v) -> $v {
@@ -192,16 +199,16 @@ macro_rules! x86_simd {
 
 #[cfg(target_arch = "x86_64")]
 x86_simd!(Avx512, f32, std::arch::x86_64::__m512, 16, zero _mm512_setzero_ps, set1 _mm512_set1_ps, loadu _mm512_loadu_ps,
-          storeu _mm512_storeu_ps, fmadd _mm512_fmadd_ps, max _mm512_max_ps, sum std::arch::x86_64::_mm512_reduce_add_ps);
+          storeu _mm512_storeu_ps, add _mm512_add_ps, fmadd _mm512_fmadd_ps, max _mm512_max_ps, sum std::arch::x86_64::_mm512_reduce_add_ps);
 #[cfg(target_arch = "x86_64")]
 x86_simd!(Avx512, f64, std::arch::x86_64::__m512d, 8, zero _mm512_setzero_pd, set1 _mm512_set1_pd, loadu _mm512_loadu_pd,
-          storeu _mm512_storeu_pd, fmadd _mm512_fmadd_pd, max _mm512_max_pd, sum std::arch::x86_64::_mm512_reduce_add_pd);
+          storeu _mm512_storeu_pd, add _mm512_add_pd, fmadd _mm512_fmadd_pd, max _mm512_max_pd, sum std::arch::x86_64::_mm512_reduce_add_pd);
 #[cfg(target_arch = "x86_64")]
 x86_simd!(Avx2, f32, std::arch::x86_64::__m256, 8, zero _mm256_setzero_ps, set1 _mm256_set1_ps, loadu _mm256_loadu_ps,
-          storeu _mm256_storeu_ps, fmadd _mm256_fmadd_ps, max _mm256_max_ps, sum sum_lanes::<f32, Avx2>);
+          storeu _mm256_storeu_ps, add _mm256_add_ps, fmadd _mm256_fmadd_ps, max _mm256_max_ps, sum sum_lanes::<f32, Avx2>);
 #[cfg(target_arch = "x86_64")]
 x86_simd!(Avx2, f64, std::arch::x86_64::__m256d, 4, zero _mm256_setzero_pd, set1 _mm256_set1_pd, loadu _mm256_loadu_pd,
-          storeu _mm256_storeu_pd, fmadd _mm256_fmadd_pd, max _mm256_max_pd, sum sum_lanes::<f64, Avx2>);
+          storeu _mm256_storeu_pd, add _mm256_add_pd, fmadd _mm256_fmadd_pd, max _mm256_max_pd, sum sum_lanes::<f64, Avx2>);
 
 /// The lanes of `v` added in order, through memory (for paths without a reduction intrinsic).
 #[cfg(target_arch = "x86_64")]
@@ -237,6 +244,10 @@ unsafe impl<E: crate::Float> Simd<E> for Generic {
     unsafe fn store(p: *mut E, v: Self::V) {
         // SAFETY: the caller passes LANES writable elements.
         unsafe { std::ptr::write_unaligned(p.cast(), v) }
+    }
+    #[inline(always)]
+    unsafe fn add(a: Self::V, b: Self::V) -> Self::V {
+        std::array::from_fn(|l| a[l] + b[l])
     }
     #[inline(always)]
     unsafe fn fma(a: Self::V, b: Self::V, c: Self::V) -> Self::V {
