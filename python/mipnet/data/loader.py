@@ -11,6 +11,7 @@ from __future__ import annotations
 import collections
 import multiprocessing
 import random
+import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from numbers import Number
@@ -64,6 +65,9 @@ _WORKER: dict = {}
 
 
 def _init_worker(loader: DataLoader, epoch: int, counter) -> None:
+    # The parent owns Ctrl-C and SIGTERM (a training run checkpoints on them); a worker ends when told.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     with counter.get_lock():
         worker_id = counter.value
         counter.value += 1
