@@ -7,16 +7,9 @@ use _core::ops::conv::{conv2d_bwd, conv2d_fwd, Conv2dCfg, Conv2dNeed};
 use ndarray::{ArrayD, Dimension, IxDyn};
 use std::time::Instant;
 
-/// CPU time of all this process's threads, seconds (from /proc/self/task/*/schedstat: time on a CPU,
-/// so another process sharing the cores does not count; Linux only, 0 elsewhere).
-fn cpu_seconds() -> f64 {
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return 0.0 };
-    tasks
-        .filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("schedstat")).ok())
-        .filter_map(|s| s.split_whitespace().next()?.parse::<f64>().ok())
-        .sum::<f64>()
-        / 1e9
-}
+#[path = "common/cpu_time.rs"]
+mod cpu_time;
+use cpu_time::cpu_seconds;
 
 fn main() -> Result<(), String> {
     let a: Vec<usize> = std::env::args().skip(1).map(|s| s.parse().map_err(|_| format!("{s}: not a number"))).collect::<Result<_, _>>()?;

@@ -8,16 +8,9 @@ use _core::gemm::{cpu_info, fma_peak_gflops, gemm_ex, Epilogue, Isa, Plan};
 use ndarray::Array2;
 use std::time::Instant;
 
-/// CPU time of all this process's threads, seconds (from /proc/self/task/*/schedstat: time on a CPU,
-/// so another process sharing the cores does not count; Linux only, 0 elsewhere).
-fn cpu_seconds() -> f64 {
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return 0.0 };
-    tasks
-        .filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("schedstat")).ok())
-        .filter_map(|s| s.split_whitespace().next()?.parse::<f64>().ok())
-        .sum::<f64>()
-        / 1e9
-}
+#[path = "common/cpu_time.rs"]
+mod cpu_time;
+use cpu_time::cpu_seconds;
 
 fn parse_plan(s: &str) -> Result<Plan<f32>, String> {
     let f: Vec<&str> = s.split(':').collect();

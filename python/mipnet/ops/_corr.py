@@ -105,38 +105,34 @@ def rls_correlation(fl: Tensor, warped: Tensor, rx: int = 3, ry: int = 1) -> Ten
     return _RlsCorr.apply(f, as_tensor(warped, f), int(rx), int(ry))
 
 
-class _IpWarpCorr(Function):
+class _WarpCorr(Function):
+    """Horizontal warp of F_R by the flow fused with a correlation; ``forward_kernel`` and
+    ``backward_kernel`` take (fl, fr, flow_x[, g], *options)."""
+
+    fresh_grads = True
+    forward_kernel = backward_kernel = None
+
+    @classmethod
+    def forward(cls, ctx, fl, fr, flow_x, *options):
+        ctx.save_for_backward(fl, fr, flow_x)
+        ctx.options = options
+        return cls.forward_kernel(fl, fr, flow_x, *options)
+
+    @classmethod
+    def backward(cls, ctx, g):
+        fl, fr, flow_x = ctx.saved_tensors
+        dfl, dfr = cls.backward_kernel(fl, fr, flow_x, g, *ctx.options)
+        return (dfl, dfr, None) + (None,) * len(ctx.options)
+
+
+class _IpWarpCorr(_WarpCorr):
     name = "ip_warp_correlation"
-    fresh_grads = True
-
-    @staticmethod
-    def forward(ctx, fl, fr, flow_x, groups, seeds):
-        ctx.save_for_backward(fl, fr, flow_x)
-        ctx.groups, ctx.seeds = groups, seeds
-        return _core.ip_warp_corr_fwd(fl, fr, flow_x, groups, seeds)
-
-    @staticmethod
-    def backward(ctx, g):
-        fl, fr, flow_x = ctx.saved_tensors
-        dfl, dfr = _core.ip_warp_corr_bwd(fl, fr, flow_x, g, ctx.groups, ctx.seeds)
-        return dfl, dfr, None, None, None
+    forward_kernel, backward_kernel = staticmethod(_core.ip_warp_corr_fwd), staticmethod(_core.ip_warp_corr_bwd)
 
 
-class _RlsWarpCorr(Function):
+class _RlsWarpCorr(_WarpCorr):
     name = "rls_warp_correlation"
-    fresh_grads = True
-
-    @staticmethod
-    def forward(ctx, fl, fr, flow_x, rx, ry):
-        ctx.save_for_backward(fl, fr, flow_x)
-        ctx.rx, ctx.ry = rx, ry
-        return _core.rls_warp_corr_fwd(fl, fr, flow_x, rx, ry)
-
-    @staticmethod
-    def backward(ctx, g):
-        fl, fr, flow_x = ctx.saved_tensors
-        dfl, dfr = _core.rls_warp_corr_bwd(fl, fr, flow_x, g, ctx.rx, ctx.ry)
-        return dfl, dfr, None, None, None
+    forward_kernel, backward_kernel = staticmethod(_core.rls_warp_corr_fwd), staticmethod(_core.rls_warp_corr_bwd)
 
 
 def _flow_x(flow_x, like: Tensor):
