@@ -65,6 +65,13 @@ def test_conv2d_without_bias_matches_torch(dtype):
     check_op([x, w], lambda x, w: F.conv2d(x, w, None, 2, 1), lambda x, w: M.conv2d(x, w, stride=2, padding=1), dtype=dtype)
 
 
+@pytest.mark.parametrize("stride, padding", [(1, 3), (2, 2)])
+def test_1x1_conv_with_padding_has_more_output_than_input_pixels(stride, padding):
+    # found by the random-shape parity test: a padded 1x1 conv is not pointwise (a 2x2 input gives 8x8 outputs)
+    check_op(_inputs((1, 1, 2, 2), (3, 1, 1, 1)), lambda x, w, b: F.conv2d(x, w, b, stride, padding),
+             lambda x, w, b: M.conv2d(x, w, b, stride, padding), dtype=np.float32)
+
+
 def test_conv2d_detached_input_gives_weight_and_bias_grads_only():
     # the motion encoders' flow input is detached: 5x5 conv with grads to weight and bias only
     check_op(_inputs((2, 2, 12, 16), (8, 2, 5, 5)), lambda x, w, b: F.conv2d(x, w, b, padding=2),

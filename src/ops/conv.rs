@@ -589,10 +589,12 @@ fn forward<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, b
             let px = t * tile..t * tile + yt.ncols();
             let (rsc, c) = (yt.strides()[0], yt.as_mut_ptr());
             let init = bias.map_or(Init::Zero, |b| Init::Bias(b.as_ptr()));
-            // x[n] as [Cin, H·W], columns of the tile
-            let xt = Strided { ptr: xn[px.start..].as_ptr(), rows: g.cin, cols: px.len(), rs: g.pix() as isize, cs: 1, scale: F::one() };
+            // x[n] as [Cin, H·W], columns of the tile (only a pointwise conv's output pixels are input pixels)
+            let xt = g.pointwise().then(|| Strided {
+                ptr: xn[px.start..].as_ptr(), rows: g.cin, cols: px.len(), rs: g.pix() as isize, cs: 1, scale: F::one(),
+            });
             let cols = Im2colB { g, xn, tile: px.clone() };
-            let b: &dyn PackB<F> = if g.pointwise() { &xt } else { &cols };
+            let b: &dyn PackB<F> = match &xt { Some(xt) => xt, None => &cols };
             // Y[n][:, tile] = W · cols[:, tile] (+ b, ReLU)
             // SAFETY: C is this task's own block of y (Cout x tile, row stride H·W); A has Cout rows,
             // B the tile's columns, both over K; the bias has Cout values.
