@@ -46,7 +46,9 @@ case "${1:-}" in
     echo "started $stage (pid $!): $args"
     ;;
   stop)
-    pkill -TERM -f "mipnet train" && echo "SIGTERM sent; waiting for the checkpoint" || echo "no run"
+    # the run's main process only (the oldest match): its loader workers end when it tells them
+    pid=$(pgrep -o -f "mipnet train" || true)
+    if [ -n "$pid" ]; then kill -TERM "$pid" && echo "SIGTERM sent to $pid; waiting for the checkpoint"; else echo "no run"; fi
     while pgrep -f "mipnet train" >/dev/null; do sleep 2; done
     ;;
   status)

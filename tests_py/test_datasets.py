@@ -365,6 +365,31 @@ def test_loader_workers_on_synthetic_data_and_early_break():
         break  # the pool is torn down when the generator is closed
 
 
+def test_loader_survives_a_killed_worker():
+    # `kill` of a process group reaches the workers too; the loader must neither hang nor go on silently.
+    import multiprocessing
+    import signal
+    import threading
+
+    batches = iter(DataLoader(SyntheticStereo(8, 24, 32, seed=1), batch_size=1, num_workers=1))
+    next(batches)
+    for child in multiprocessing.active_children():
+        os.kill(child.pid, signal.SIGTERM)
+    outcome = []
+
+    def drain():
+        try:
+            outcome.append(len(list(batches)))
+        except RuntimeError as exc:
+            outcome.append(exc)
+
+    thread = threading.Thread(target=drain, daemon=True)
+    thread.start()
+    thread.join(60)
+    assert outcome, "the loader hung after its worker was killed"
+    assert isinstance(outcome[0], RuntimeError) and "worker process died" in str(outcome[0])
+
+
 def test_collate_shape_mismatch_is_clear():
     with pytest.raises(ShapeError, match="batch_size=1"):
         default_collate([{"x": np.zeros((2, 2))}, {"x": np.zeros((3, 2))}])

@@ -71,22 +71,7 @@ pub(crate) unsafe fn micro<E: Copy, S: Simd<E>, const MR: usize, const NV: usize
         let mut k0 = 0;
         loop {
             let steps = SUB_K.min(kc - k0);
-            let mut acc = [[S::zero(); NV]; MR];
-            for _ in 0..steps {
-                // acc[i][v] += A(i, kk) · B(kk, v·LANES .. (v + 1)·LANES)
-                let bv: [S::V; NV] = std::array::from_fn(|v| S::load(b.add(v * S::LANES)));
-                for j in (0..nr).step_by(line) {
-                    S::prefetch(b.wrapping_add(PREFETCH_K * ldb + j));
-                }
-                for (i, row) in acc.iter_mut().enumerate() {
-                    let ai = S::splat(*a.add(i));
-                    for (r, &bb) in row.iter_mut().zip(&bv) {
-                        *r = S::fma(ai, bb, *r);
-                    }
-                }
-                a = a.add(MR);
-                b = b.add(ldb);
-            }
+            let acc = run::<E, S, MR, NV>(steps, &mut a, &mut b, ldb);
             let last = k0 + steps >= kc;
             for (i, row) in acc.iter().enumerate() {
                 for (v, &r) in row.iter().enumerate() {
@@ -106,6 +91,42 @@ pub(crate) unsafe fn micro<E: Copy, S: Simd<E>, const MR: usize, const NV: usize
             }
         }
     }
+}
+
+/// One run of the accumulators: Σ over `steps` depth steps of A(:, kk) ⊗ B(kk, :) from 0, advancing
+/// `a` and `b` past them. Its own function so that the accumulators, indexed only by constants
+/// here, stay in registers (in `micro` the epilogue's loops index them, and LLVM then kept a stack
+/// copy it stored to after every FMA, which halved the kernel's speed).
+///
+/// # Safety
+/// As [`micro`], for `steps` depth steps from `a` and `b`.
+#[inline(always)]
+unsafe fn run<E: Copy, S: Simd<E>, const MR: usize, const NV: usize>(steps: usize, a: &mut *const E, b: &mut *const E,
+                                                                    ldb: usize) -> [[S::V; NV]; MR] {
+    let nr = NV * S::LANES;
+    let line = 64 / std::mem::size_of::<E>();
+    let (mut pa, mut pb) = (*a, *b);
+    let mut acc = [[S::zero(); NV]; MR];
+    // SAFETY: the caller's contract covers `steps` steps of both panels; prefetches never fault.
+    unsafe {
+        for _ in 0..steps {
+            // acc[i][v] += A(i, kk) · B(kk, v·LANES .. (v + 1)·LANES)
+            let bv: [S::V; NV] = std::array::from_fn(|v| S::load(pb.add(v * S::LANES)));
+            for j in (0..nr).step_by(line) {
+                S::prefetch(pb.wrapping_add(PREFETCH_K * ldb + j));
+            }
+            for (i, row) in acc.iter_mut().enumerate() {
+                let ai = S::splat(*pa.add(i));
+                for (r, &bb) in row.iter_mut().zip(&bv) {
+                    *r = S::fma(ai, bb, *r);
+                }
+            }
+            pa = pa.add(MR);
+            pb = pb.add(ldb);
+        }
+    }
+    (*a, *b) = (pa, pb);
+    acc
 }
 
 /// Defines `$name::<E, MR, NV>`: [`micro`] compiled for one ISA (`$feat` is its `target_feature`).

@@ -9,11 +9,14 @@ The batches are therefore identical with any ``num_workers``. Workers also seed 
 from __future__ import annotations
 
 import collections
+import itertools
 import multiprocessing
 import random
 import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from numbers import Number
 
 import numpy as np
@@ -170,26 +173,26 @@ class DataLoader:
             return (self._load_batch(epoch, batch) for batch in batches)
         return self._iter_workers(epoch, batches)
 
-    def _iter_workers(self, epoch: int, batches: list) -> Iterator:
+    def _iter_workers(self, epoch: int, batches: Iterator) -> Iterator:
+        # concurrent.futures rather than multiprocessing.Pool: a worker killed by a signal (a
+        # `kill` of the whole process group) breaks the executor instead of deadlocking shutdown
+        # on the queue lock the dead worker held.
         method = "fork" if sys.platform.startswith("linux") else "spawn"
         context = multiprocessing.get_context(method)
         counter = context.Value("i", 0)
-        pool = context.Pool(self.num_workers, initializer=_init_worker, initargs=(self, epoch, counter))
+        pool = ProcessPoolExecutor(self.num_workers, mp_context=context, initializer=_init_worker,
+                                   initargs=(self, epoch, counter))
         try:
-            pending: collections.deque = collections.deque()
-            upcoming = iter(batches)
             # Keep at most two batches per worker in flight; results come back in submission order.
-            for batch in upcoming:
-                pending.append(pool.apply_async(_load_batch_in_worker, (batch,)))
-                if len(pending) >= 2 * self.num_workers:
-                    break
+            pending: collections.deque = collections.deque(
+                pool.submit(_load_batch_in_worker, batch) for batch in itertools.islice(batches, 2 * self.num_workers))
             while pending:
-                result = pending.popleft().get()
-                following = next(upcoming, None)
+                result = pending.popleft().result()
+                following = next(batches, None)
                 if following is not None:
-                    pending.append(pool.apply_async(_load_batch_in_worker, (following,)))
+                    pending.append(pool.submit(_load_batch_in_worker, following))
                 yield result
-            pool.close()
+        except BrokenProcessPool as exc:
+            raise RuntimeError(f"DataLoader: a worker process died (killed by a signal or out of memory): {exc}") from exc
         finally:
-            pool.terminate()
-            pool.join()
+            pool.shutdown(wait=True, cancel_futures=True)
