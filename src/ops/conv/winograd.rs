@@ -17,7 +17,7 @@ use crate::gemm::{self, Init, Isa, Plan, Prepacked, SourceA, Strided};
 use crate::{Float, Result};
 use ndarray::Array3;
 use rayon::prelude::*;
-use std::ops::Range;
+use std::ops::{Add, Mul, Range, Sub};
 
 /// Positions of the 6 x 6 transform.
 const XI: usize = 36;
@@ -43,18 +43,101 @@ pub(super) fn pays(g: &Geom) -> bool {
     g.cin.min(g.cout) >= MIN_CHANNELS && tiles >= MIN_TILES
 }
 
+/// What the 1-D transforms compute on: one value F, or [`Lanes`] of F (one per tile).
+trait Lane<F>: Copy + Add<Output = Self> + Sub<Output = Self> + Mul<F, Output = Self> {}
+impl<F: Float> Lane<F> for F {}
+impl<F: Float> Lane<F> for Lanes<F> {}
+
+/// Tiles per block of the row transforms: one 512-bit register of f32.
+const LANES: usize = 16;
+
+/// One value per tile for LANES tiles. Its operations are fixed-length loops, which the compiler
+/// turns into vector instructions; each lane computes exactly what the scalar path computes.
+#[derive(Clone, Copy)]
+struct Lanes<F>([F; LANES]);
+
+impl<F: Float> Add for Lanes<F> {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        let mut r = self.0;
+        for (x, &y) in r.iter_mut().zip(&o.0) {
+            *x = *x + y;
+        }
+        Lanes(r)
+    }
+}
+
+impl<F: Float> Sub for Lanes<F> {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        let mut r = self.0;
+        for (x, &y) in r.iter_mut().zip(&o.0) {
+            *x = *x - y;
+        }
+        Lanes(r)
+    }
+}
+
+impl<F: Float> Mul<F> for Lanes<F> {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, k: F) -> Self {
+        let mut r = self.0;
+        for x in r.iter_mut() {
+            *x = *x * k;
+        }
+        Lanes(r)
+    }
+}
+
+/// A 1-D transform of 6 values into N, written once for one value and for [`Lanes`].
+trait Transform1d<const N: usize> {
+    fn apply<F: Float, T: Lane<F>>(d: [T; 6]) -> [T; N];
+}
+
 /// v = Bᵀ d for one 6-vector d: the input transform along one axis.
+struct InputTransform;
+
+impl Transform1d<6> for InputTransform {
+    #[inline(always)]
+    fn apply<F: Float, T: Lane<F>>(d: [T; 6]) -> [T; 6] {
+        let (c2, c4, c5, m2, m4) = (F::c(2.0), F::c(4.0), F::c(5.0), F::c(-2.0), F::c(-4.0));
+        [
+            d[0] * c4 - d[2] * c5 + d[4],
+            d[1] * m4 - d[2] * c4 + d[3] + d[4],
+            d[1] * c4 - d[2] * c4 - d[3] + d[4],
+            d[1] * m2 - d[2] + d[3] * c2 + d[4],
+            d[1] * c2 - d[2] - d[3] * c2 + d[4],
+            d[1] * c4 - d[3] * c5 + d[5],
+        ]
+    }
+}
+
+/// dst[k][tx] = X(src[0][tx], .., src[5][tx])[k] for every tile tx of the rows: blocks of LANES
+/// tiles on [`Lanes`], the rest one tile at a time (the same operations on F).
 #[inline(always)]
-fn input_1d<F: Float>(d: [F; 6]) -> [F; 6] {
-    let (c2, c4, c5) = (F::c(2.0), F::c(4.0), F::c(5.0));
-    [
-        c4 * d[0] - c5 * d[2] + d[4],
-        -c4 * d[1] - c4 * d[2] + d[3] + d[4],
-        c4 * d[1] - c4 * d[2] - d[3] + d[4],
-        -c2 * d[1] - d[2] + c2 * d[3] + d[4],
-        c2 * d[1] - d[2] - c2 * d[3] + d[4],
-        c4 * d[1] - c5 * d[3] + d[5],
-    ]
+fn map_tiles<F: Float, X: Transform1d<N>, const N: usize>(src: [&[F]; 6], dst: &mut [&mut [F]; N]) {
+    let tw = dst[0].len();
+    let full = tw / LANES * LANES;
+    for t0 in (0..full).step_by(LANES) {
+        // tiles t0 .. t0 + LANES of every row
+        let mut d = [Lanes([F::zero(); LANES]); 6];
+        for (dj, sj) in d.iter_mut().zip(&src) {
+            dj.0.copy_from_slice(&sj[t0..t0 + LANES]);
+        }
+        let out = X::apply::<F, Lanes<F>>(d);
+        for (row, o) in dst.iter_mut().zip(&out) {
+            row[t0..t0 + LANES].copy_from_slice(&o.0);
+        }
+    }
+    for tx in full..tw {
+        let out = X::apply::<F, F>([src[0][tx], src[1][tx], src[2][tx], src[3][tx], src[4][tx], src[5][tx]]);
+        for (row, &o) in dst.iter_mut().zip(&out) {
+            row[tx] = o;
+        }
+    }
 }
 
 /// u = G g for one 3-vector g: the weight transform along one axis.
@@ -67,29 +150,36 @@ fn weight_1d<F: Float>(g: [F; 3]) -> [F; 6] {
 }
 
 /// y = Aᵀ m for one 6-vector m: the output transform along one axis.
-#[inline(always)]
-fn output_1d<F: Float>(m: [F; 6]) -> [F; 4] {
-    let (c2, c4, c8) = (F::c(2.0), F::c(4.0), F::c(8.0));
-    let (s12, d12, s34, d34) = (m[1] + m[2], m[1] - m[2], m[3] + m[4], m[3] - m[4]);
-    [m[0] + s12 + s34, d12 + c2 * d34, s12 + c4 * s34, d12 + c8 * d34 + m[5]]
+struct OutputTransform;
+
+impl Transform1d<4> for OutputTransform {
+    #[inline(always)]
+    fn apply<F: Float, T: Lane<F>>(m: [T; 6]) -> [T; 4] {
+        let (c2, c4, c8) = (F::c(2.0), F::c(4.0), F::c(8.0));
+        let (s12, d12, s34, d34) = (m[1] + m[2], m[1] - m[2], m[3] + m[4], m[3] - m[4]);
+        [m[0] + s12 + s34, d12 + d34 * c2, s12 + s34 * c4, d12 + d34 * c8 + m[5]]
+    }
 }
 
 /// The transformed weights: `U_ξ` = (G · `w[o, c]` · Gᵀ)[ξ] as 36 matrices [Cout, Cin], packed for `plan`.
 fn weights<F: Float>(plan: &Plan<F>, w: &[F], cout: usize, cin: usize) -> Vec<Prepacked<F>> {
-    let mut u = vec![F::zero(); XI * cout * cin];
-    for (oc, g) in w.chunks_exact(9).enumerate() {
-        // rows of G·g (6 x 3), then each of its rows times Gᵀ: (G g Gᵀ)[a][b]
+    // t[oc][ξ] = (G · w[oc] · Gᵀ)[ξ], oc = o·Cin + c, pair by pair in parallel
+    let mut t = vec![F::zero(); cout * cin * XI];
+    t.par_chunks_mut(XI).zip(w.par_chunks_exact(9)).for_each(|(u, g)| {
+        // rows of G·g (6 x 3), then each of its rows times Gᵀ: (G g Gᵀ)[a][b] at ξ = 6a + b
         let cols: [[F; 6]; 3] = std::array::from_fn(|j| weight_1d([g[j], g[3 + j], g[6 + j]]));
-        for a in 0..6 {
-            let row = weight_1d([cols[0][a], cols[1][a], cols[2][a]]);
-            for (b, &v) in row.iter().enumerate() {
-                // U[ξ = 6a + b][o, c], oc = o·Cin + c
-                u[(6 * a + b) * cout * cin + oc] = v;
-            }
+        for (a, ua) in u.chunks_exact_mut(6).enumerate() {
+            ua.copy_from_slice(&weight_1d([cols[0][a], cols[1][a], cols[2][a]]));
         }
-    }
-    u.chunks_exact(cout * cin)
-        .map(|ux| Prepacked::new(plan, &Strided { ptr: ux.as_ptr(), rows: cout, cols: cin, rs: cin as isize, cs: 1, scale: F::one() }))
+    });
+    // U_ξ[o, c] = t[(o·Cin + c)·36 + ξ], gathered into a plane and packed, plane by plane in parallel
+    (0..XI)
+        .into_par_iter()
+        .map(|xi| {
+            let plane: Vec<F> = t[xi..].iter().step_by(XI).copied().collect();
+            let view = Strided { ptr: plane.as_ptr(), rows: cout, cols: cin, rs: cin as isize, cs: 1, scale: F::one() };
+            Prepacked::new(plan, &view)
+        })
         .collect()
 }
 
@@ -264,6 +354,26 @@ fn input_transform<F: Float>(plan: &Plan<F>, g: &Geom, xc: &[F], rows: Range<usi
 isa_version!(input_row_avx512, input_row, "avx512f", (width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize));
 isa_version!(input_row_avx2, input_row, "avx2,fma", (width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize));
 
+/// Six disjoint rows of `len` elements of `buf`, row r at `first + r·stride` (stride >= len): the
+/// destinations of a 1-D transform, as exact-length slices so the loops over them vectorise
+/// (indexing `buf` at `first + r·stride + tx` kept a bounds check per element, which left the
+/// transforms scalar).
+fn six_rows_mut<F>(buf: &mut [F], first: usize, stride: usize, len: usize) -> [&mut [F]; 6] {
+    assert!(stride >= len, "six_rows_mut: rows overlap");
+    let mut rest = &mut buf[first..];
+    std::array::from_fn(|r| {
+        // row r spans first + r·stride .. + len; the next one starts stride after it
+        let (row, tail) = std::mem::take(&mut rest).split_at_mut(len);
+        rest = if r < 5 { &mut tail[stride - len..] } else { tail };
+        row
+    })
+}
+
+/// Six rows of `len` elements of `buf`, row r at `first + r·stride`, as exact-length slices.
+fn six_rows<F>(buf: &[F], first: usize, stride: usize, len: usize) -> [&[F]; 6] {
+    std::array::from_fn(|r| &buf[first + r * stride..first + r * stride + len])
+}
+
 /// The input transform of one row of tiles from its 6 padded input rows (`buf.patch`): along x per
 /// patch row (into `buf.ex`), then along y into `v[ξ·xi_stride + at + tx]`. Every loop runs over
 /// the tiles tx of the row on contiguous arrays.
@@ -278,27 +388,19 @@ fn input_row<F: Float>(width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], 
         for (tx, q) in row.chunks_exact(TILE).take(tw + 1).enumerate() {
             (p0[tx], p1[tx], p2[tx], p3[tx]) = (q[0], q[1], q[2], q[3]);
         }
+        // d_j[tx] = row[4·tx + j]: phase j % 4 from tile tx + j / 4
         let p = |m: usize, shift: usize| &phase[m * (tw + 1) + shift..m * (tw + 1) + shift + tw];
         let (d0, d1, d2, d3, d4, d5) = (p(0, 0), p(1, 0), p(2, 0), p(3, 0), p(0, 1), p(1, 1));
         // ex[r][k][tx] = (Bᵀ d_row)[k] for the 6 values d_j = row[4·tx + j]
-        let e = &mut ex[r * 6 * tw..(r + 1) * 6 * tw];
-        for tx in 0..tw {
-            let out = input_1d([d0[tx], d1[tx], d2[tx], d3[tx], d4[tx], d5[tx]]);
-            for (k, &o) in out.iter().enumerate() {
-                e[k * tw + tx] = o;
-            }
-        }
+        let mut e = six_rows_mut(ex, r * 6 * tw, tw, tw);
+        map_tiles::<F, InputTransform, 6>([d0, d1, d2, d3, d4, d5], &mut e);
     }
     for b in 0..6 {
-        // column b of every patch: ex[r][b][tx] for r = 0..6, transformed along y into ξ = 6a + b
-        let col = |r: usize| &ex[(r * 6 + b) * tw..(r * 6 + b + 1) * tw];
-        let (c0, c1, c2, c3, c4, c5) = (col(0), col(1), col(2), col(3), col(4), col(5));
-        for tx in 0..tw {
-            let out = input_1d([c0[tx], c1[tx], c2[tx], c3[tx], c4[tx], c5[tx]]);
-            for (a, &o) in out.iter().enumerate() {
-                v[(6 * a + b) * xi_stride + at + tx] = o;
-            }
-        }
+        // column b of every patch: ex[r][b][tx] for r = 0..6 (rows 6·tw apart), along y into ξ = 6a + b
+        let c = six_rows(ex, b * tw, 6 * tw, tw);
+        // V[6a + b] rows: at + (6a + b)·xi_stride, i.e. 6·xi_stride apart from b·xi_stride
+        let mut out_rows = six_rows_mut(v, b * xi_stride + at, 6 * xi_stride, tw);
+        map_tiles::<F, InputTransform, 6>(c, &mut out_rows);
     }
 }
 
@@ -338,27 +440,24 @@ isa_version!(output_row_avx2, output_row, "avx2,fma", (m: &[F], at: usize, xi_st
 fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, relu: bool, buf: &mut Rows<F>) {
     let Rows { patch, ex, .. } = buf;
     for b in 0..6 {
-        // column b: m[6a + b] for a = 0..6, transformed along y into ex[b][r][tx], r < 4
-        let mv = |a: usize| &m[(6 * a + b) * xi_stride + at..(6 * a + b) * xi_stride + at + tw];
-        let (m0, m1, m2, m3, m4, m5) = (mv(0), mv(1), mv(2), mv(3), mv(4), mv(5));
-        let e = &mut ex[b * TILE * tw..(b + 1) * TILE * tw];
-        for tx in 0..tw {
-            let out = output_1d([m0[tx], m1[tx], m2[tx], m3[tx], m4[tx], m5[tx]]);
-            for (r, &o) in out.iter().enumerate() {
-                e[r * tw + tx] = o;
-            }
-        }
+        // column b: m[6a + b] for a = 0..6 (rows 6·xi_stride apart), along y into ex[b][r][tx], r < 4
+        let mv = six_rows(m, b * xi_stride + at, 6 * xi_stride, tw);
+        let [e0, e1, e2, e3, ..] = six_rows_mut(&mut ex[b * TILE * tw..], 0, tw, tw);
+        map_tiles::<F, OutputTransform, 4>(mv, &mut [e0, e1, e2, e3]);
     }
     for r in 0..TILE {
-        // output row r of every tile: (ex[b][r][tx] for b = 0..6) along x into columns 4·tx + q
-        let row = |b: usize| &ex[(b * TILE + r) * tw..(b * TILE + r + 1) * tw];
-        let (e0, e1, e2, e3, e4, e5) = (row(0), row(1), row(2), row(3), row(4), row(5));
+        // output row r of every tile: (ex[b][r][tx] for b = 0..6, rows 4·tw apart) along x into
+        // q[c][tx] (ex rows 24..28, free), then interleaved into columns 4·tx + c
+        let (e, free) = ex.split_at_mut(6 * TILE * tw);
+        let e = six_rows(e, r * tw, TILE * tw, tw);
+        let [q0, q1, q2, q3, ..] = six_rows_mut(free, 0, tw, tw);
+        let mut q = [q0, q1, q2, q3];
+        map_tiles::<F, OutputTransform, 4>(e, &mut q);
         let out_row = &mut patch[r * TILE * tw..(r + 1) * TILE * tw];
         for (tx, quad) in out_row.chunks_exact_mut(TILE).enumerate() {
-            let out = output_1d([e0[tx], e1[tx], e2[tx], e3[tx], e4[tx], e5[tx]]);
-            for (q, &o) in quad.iter_mut().zip(&out) {
-                let o = o + b0;
-                *q = if relu { o.max(F::zero()) } else { o };
+            for (c, slot) in quad.iter_mut().enumerate() {
+                let o = q[c][tx] + b0;
+                *slot = if relu { o.max(F::zero()) } else { o };
             }
         }
     }
