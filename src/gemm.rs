@@ -58,8 +58,9 @@ macro_rules! pick {
 ///   registers; per k, 3 vector loads and 8 broadcasts for 24 FMAs, under the 2 loads per cycle of
 ///   Intel (2 FMA ports) and of Zen 4 (one 512-bit FMA per cycle, double-pumped, so half the loads
 ///   per FMA suffice there); 24 independent chains cover 4-cycle latency x 2 ports three times over.
-///   Measured on a Xeon (model 207) at one thread, 1024x1152x2048: 8x48 90%, 12x32 88%, 14x32 87%,
-///   6x64 86% of the FMA peak.
+///   Measured on a Xeon (model 207) at one thread, 1024x1152x2048 (`examples/gemm_tune.rs`, after the
+///   accumulators were kept out of memory, see `kernel::run`): 8x48 72-87% (run to run, a shared VM),
+///   6x64 84%, 14x32 76%, 12x32 67% of the FMA peak.
 /// - AVX2 4 x 3 (4 x 24): 12 accumulators + 3 + 1 = the 16 registers; 85% against 81% for 6 x 16.
 /// - Portable 4 x 2 vectors of 4.
 #[cfg(target_arch = "x86_64")]

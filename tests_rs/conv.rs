@@ -412,12 +412,14 @@ fn conv2d_fused_relu_equals_relu_of_conv_bitwise() {
 }
 
 /// 3x3 stride-1 geometries for Winograd: paddings 0, 1, 2 and mixed, sizes that leave partial
-/// 4 x 4 tiles, and one with many tiles and channels.
+/// 4 x 4 tiles, rows wider than a vector block of tiles, and one with many tiles and channels.
 const WINOGRAD_CASES: &[Case] = &[
     ("3x3_p1_odd", [2, 3, 9, 7], [4, 3, 3, 3], [1, 1], [1, 1]),
     ("3x3_p0", [1, 2, 10, 13], [3, 2, 3, 3], [1, 1], [0, 0]),
     ("3x3_p2", [1, 2, 5, 6], [3, 2, 3, 3], [1, 1], [2, 2]),
     ("3x3_p0x1", [2, 3, 7, 8], [4, 3, 3, 3], [1, 1], [0, 1]),
+    // 19 tiles per row: one vector block of the row transforms (16 tiles) and a tail of 3
+    ("3x3_p1_wide", [1, 3, 6, 75], [4, 3, 3, 3], [1, 1], [1, 1]),
     ("3x3_p1_64ch", [2, 64, 29, 35], [24, 64, 3, 3], [1, 1], [1, 1]),
 ];
 
