@@ -56,29 +56,25 @@ const LANES: usize = 16;
 #[derive(Clone, Copy)]
 struct Lanes<F>([F; LANES]);
 
-impl<F: Float> Add for Lanes<F> {
-    type Output = Self;
-    #[inline(always)]
-    fn add(self, o: Self) -> Self {
-        let mut r = self.0;
-        for (x, &y) in r.iter_mut().zip(&o.0) {
-            *x = *x + y;
+/// `impl $tr for Lanes<F>`: the lane-wise binary operation `$op`.
+macro_rules! lanes_op {
+    ($tr:ident, $method:ident, $op:tt) => {
+        impl<F: Float> $tr for Lanes<F> {
+            type Output = Self;
+            #[inline(always)]
+            fn $method(self, o: Self) -> Self {
+                let mut r = self.0;
+                for (x, &y) in r.iter_mut().zip(&o.0) {
+                    *x = *x $op y;
+                }
+                Lanes(r)
+            }
         }
-        Lanes(r)
-    }
+    };
 }
 
-impl<F: Float> Sub for Lanes<F> {
-    type Output = Self;
-    #[inline(always)]
-    fn sub(self, o: Self) -> Self {
-        let mut r = self.0;
-        for (x, &y) in r.iter_mut().zip(&o.0) {
-            *x = *x - y;
-        }
-        Lanes(r)
-    }
-}
+lanes_op!(Add, add, +);
+lanes_op!(Sub, sub, -);
 
 impl<F: Float> Mul<F> for Lanes<F> {
     type Output = Self;
