@@ -14,12 +14,14 @@ cd "$(dirname "$0")/.."
 ROOT=${MIPNET_CAMPAIGN_ROOT:-$HOME/.cache/mipnet}
 ENGINE=$ROOT/engine
 PY=${PYTHON:-python}
+SHIPPED=python/mipnet/assets/mipnet_pretrained.safetensors
 
 # stage -> the arguments of its first start (a resumed stage keeps its own settings)
 stage_args() {
   case "$1" in
     # 1: small crops and few iterations while matching emerges
-    s1-128x256) echo "--preset cpu --steps 20000 --crop 128 256 --batch-size 4 --iters 3 3 --lr 4e-4" ;;
+    # (a machine that lost the run folder restarts it from the shipped weights, which come from this stage)
+    s1-128x256) echo "--preset cpu --steps 20000 --crop 128 256 --batch-size 4 --iters 3 3 --lr 4e-4${RESTART_INIT:+ --init $RESTART_INIT}" ;;
     # 2: larger crops, a wider disparity range, inference-like iterations, from stage 1's best weights
     s2-192x384) echo "--preset cpu --steps 10000 --crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --init $ROOT/train/s1-128x256/best.safetensors" ;;
     *) echo "unknown stage $1" >&2; exit 2 ;;
@@ -37,6 +39,9 @@ case "${1:-}" in
     if [ -d "$run/checkpoint" ] && ls "$run"/checkpoint/ckpt-*.safetensors >/dev/null 2>&1; then
       args="--resume $run"
     else
+      if [ "$stage" = s1-128x256 ] && [ -f "$SHIPPED" ]; then
+        mkdir -p "$run" && cp "$SHIPPED" "$run/restart-init.safetensors" && RESTART_INIT=$run/restart-init.safetensors
+      fi
       args="$(stage_args "$stage") --out $run"
     fi
     mkdir -p "$run"
