@@ -1,10 +1,12 @@
 """Ship a campaign run's best weights inside the package, as float16 with their provenance.
 
-    python scripts/ship_weights.py ~/.cache/mipnet/train/s1-128x256 [--weights best.safetensors]
+    python scripts/ship_weights.py ~/.cache/mipnet/train/s1-128x256 [--weights best.safetensors] [--out FILE]
 
 Writes ``python/mipnet/assets/mipnet_pretrained.safetensors`` with metadata: what it was trained on
 (data specs, generator version, steps, crop, batch, iterations), the exact commands
-(``RUN/commands.txt``), the package version and the validation table of the step it comes from.
+(``RUN/commands.txt``), the package version and the validation table of the step it comes from. A run
+started with ``--init`` from earlier shipped weights carries their history: steps add up and their
+commands come first.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ def main() -> int:
     p.add_argument("--weights", default="best.safetensors", help="file in the run folder (default best.safetensors)")
     p.add_argument("--validation", help="JSON of {'trained': table, 'sgbm': table} measured on these weights "
                                         "(default: the run's own validation at the weights' step)")
+    p.add_argument("--out", default=PRETRAINED_PATH, help="where to write (default: the package's shipped file)")
     args = p.parse_args()
     source = os.path.join(args.run, args.weights)
     _, meta = load_safetensors(source)
@@ -40,13 +43,24 @@ def main() -> int:
     config = json.loads(meta["train_config"])
     commands_path = os.path.join(args.run, "commands.txt")
     commands = open(commands_path).read().strip().splitlines() if os.path.exists(commands_path) else []
-    trained = (f"{step} steps from scratch on mipnet's generated scenes ({' '.join(config['data'])}), "
-               f"crop {config['crop'][0]}x{config['crop'][1]}, batch {config['batch_size']}, "
-               f"iterations {tuple(config['iters'])} while training, max LR {config['lr']:g}, on a 2-core CPU")
-    export_pretrained(source, PRETRAINED_PATH, trained=trained, commands=commands, validation=validation,
+    settings = (f"on mipnet's generated scenes ({' '.join(config['data'])}), "
+                f"crop {config['crop'][0]}x{config['crop'][1]}, batch {config['batch_size']}, "
+                f"iterations {tuple(config['iters'])} while training, max LR {config['lr']:g}, on a 2-core CPU")
+    trained, total = f"{step} steps from scratch {settings}", step
+    init = config.get("init")
+    if init:
+        # a run that continued shipped weights: their history first, then this run's steps
+        _, init_meta = load_safetensors(init)
+        if "step" not in init_meta or "trained" not in init_meta:
+            raise SystemExit(f"{init}: the run started from weights without provenance (no step/trained metadata)")
+        total = int(init_meta["step"]) + step
+        trained = f"{total} steps: {init_meta['trained']}; then {step} more from those weights {settings}"
+        commands = json.loads(init_meta.get("commands", "[]")) + commands
+    export_pretrained(source, args.out, trained=trained, step=str(total), commands=commands, validation=validation,
                       validation_sgbm=sgbm, validation_setup={"pairs": config["val_pairs"], "size": config["val_size"],
                                                              "iters": config["val_iters"], "seeds_from": 1_000_000})
-    print(f"wrote {PRETRAINED_PATH} ({os.path.getsize(PRETRAINED_PATH) / 2**20:.1f} MiB) from {source} (step {step})")
+    print(f"wrote {args.out} ({os.path.getsize(args.out) / 2**20:.1f} MiB) from {source} "
+          f"(step {step} of the run, {total} in all)")
     return 0
 
 

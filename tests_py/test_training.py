@@ -210,3 +210,23 @@ def test_mixture_follows_weights_and_is_deterministic():
     assert [mix[i] for i in range(50)] == [Mixture([Numbers("a", 10), Numbers("b", 3)], [0.8, 0.2], 5000, seed=7)[i]
                                            for i in range(50)]
     assert all(0 <= mix[i]["i"] < (10 if mix[i]["tag"] == "a" else 3) for i in range(200))
+
+
+def test_shipped_weights_carry_the_history_of_their_init(tmp_path):
+    # scripts/ship_weights.py: a run continued from shipped weights adds its steps to theirs
+    ship = os.path.join(os.path.dirname(__file__), "..", "scripts", "ship_weights.py")
+    first, second = str(tmp_path / "first"), str(tmp_path / "second")
+    fit(_tiny_config(steps=2), first, progress=False)
+    shipped_first = str(tmp_path / "first.safetensors")
+    subprocess.run([sys.executable, ship, first, "--weights", "model.safetensors", "--out", shipped_first], check=True)
+    fit(_tiny_config(steps=1, init=shipped_first), second, progress=False)
+    shipped_second = str(tmp_path / "second.safetensors")
+    subprocess.run([sys.executable, ship, second, "--weights", "model.safetensors", "--out", shipped_second], check=True)
+    from mipnet.weights import load_safetensors
+    _, meta_first = load_safetensors(shipped_first)
+    tensors, meta = load_safetensors(shipped_second)
+    assert meta_first["step"] == "2" and meta_first["trained"].startswith("2 steps from scratch")
+    assert meta["step"] == "3"
+    assert meta["trained"].startswith("3 steps: " + meta_first["trained"] + "; then 1 more from those weights")
+    assert all(v.dtype == np.float16 for v in tensors.values() if v.dtype.kind == "f")
+    assert mipnet.load(shipped_second).state_dict().keys() == _weights(second).keys()
