@@ -11,7 +11,8 @@ import sys
 
 import numpy as np
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+# an installed mipnet comes first; the checkout's own python/ is the fallback
+sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
 import mipnet  # noqa: E402
 from mipnet import io, viz  # noqa: E402

@@ -16,9 +16,14 @@ import json
 import os
 import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+# an installed mipnet comes first; the checkout's own python/ is the fallback
+sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
 from mipnet.pretrained import PRETRAINED_PATH, export_pretrained  # noqa: E402
+
+#: The shipped file of this checkout (where an installed package's own copy comes from).
+CHECKOUT_PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python", "mipnet", "assets",
+                                   os.path.basename(PRETRAINED_PATH))
 from mipnet.training.log import TrainLog  # noqa: E402
 from mipnet.weights import load_safetensors  # noqa: E402
 
@@ -29,7 +34,7 @@ def main() -> int:
     p.add_argument("--weights", default="best.safetensors", help="file in the run folder (default best.safetensors)")
     p.add_argument("--validation", help="JSON of {'trained': table, 'sgbm': table} measured on these weights "
                                         "(default: the run's own validation at the weights' step)")
-    p.add_argument("--out", default=PRETRAINED_PATH, help="where to write (default: the package's shipped file)")
+    p.add_argument("--out", default=CHECKOUT_PRETRAINED, help="where to write (default: the checkout's shipped file)")
     args = p.parse_args()
     source = os.path.join(args.run, args.weights)
     _, meta = load_safetensors(source)

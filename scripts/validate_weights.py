@@ -15,7 +15,8 @@ import os
 import sys
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+# an installed mipnet comes first; the checkout's own python/ is the fallback
+sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
 import mipnet  # noqa: E402
 from mipnet.training.validation import format_validation, validate_model, validate_sgbm, validation_sets  # noqa: E402
