@@ -24,6 +24,11 @@ import mipnet  # noqa: E402
 from mipnet.training.validation import validate_model, validate_sgbm, validation_sets  # noqa: E402
 
 
+def cells(row: dict) -> str:
+    """'air epe 4.85 bad3 46.6  turbid ...' for the sets of one table row."""
+    return "  ".join(f"{k} epe {v['epe']:.2f} bad3 {v['bad3']:.1f}" for k, v in row.items() if isinstance(v, dict))
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("weights")
@@ -51,10 +56,9 @@ def main() -> int:
             row = validate_model(predict, sets)
         row["seconds_per_pair"] = sum(seconds) / len(seconds)
         table["mipnet"][spec] = row
-        cells = "  ".join(f"{k} epe {v['epe']:.2f} bad3 {v['bad3']:.1f}" for k, v in row.items() if isinstance(v, dict))
-        print(f"iters {spec}: {cells}  {row['seconds_per_pair']:.2f} s/pair", flush=True)
+        print(f"iters {spec}: {cells(row)}  {row['seconds_per_pair']:.2f} s/pair", flush=True)
     if table["sgbm"]:
-        print("sgbm: " + "  ".join(f"{k} epe {v['epe']:.2f} bad3 {v['bad3']:.1f}" for k, v in table["sgbm"].items()))
+        print("sgbm: " + cells(table["sgbm"]))
     if args.out:
         with open(args.out, "w") as f:
             json.dump(table, f, indent=1)
