@@ -3,6 +3,8 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
+#   scripts/campaign.sh cycle [STEPS] # one session's cycle: a new one-cycle run of STEPS (default 1000)
+#                                     # from the shipped weights, in its own run folder train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
 #
@@ -24,13 +26,16 @@ stage_args() {
     s1-128x256) echo "--preset cpu --steps 20000 --crop 128 256 --batch-size 4 --iters 3 3 --lr 4e-4${RESTART_INIT:+ --init $RESTART_INIT}" ;;
     # 2: larger crops, a wider disparity range, inference-like iterations, from stage 1's best weights
     s2-192x384) echo "--preset cpu --steps 10000 --crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --init $ROOT/train/s1-128x256/best.safetensors" ;;
+    # a session's cycle: stage 1's settings, a short one-cycle from the shipped weights that anneals to
+    # zero within one session, so a session ends on annealed weights even if its machine is not kept
+    cycle-*) echo "--preset cpu --steps ${CYCLE_STEPS:-1000} --crop 128 256 --batch-size 4 --iters 3 3 --lr 3e-4 --init $RESTART_INIT" ;;
     *) echo "unknown stage $1" >&2; exit 2 ;;
   esac
 }
 
 case "${1:-}" in
-  start)
-    stage=${2:?stage name}
+  start|cycle)
+    if [ "$1" = cycle ]; then stage=cycle-$(date -u +%Y%m%d-%H%M) CYCLE_STEPS=${2:-1000}; else stage=${2:?stage name}; fi
     run=$ROOT/train/$stage
     mkdir -p "$ROOT/train" "$ENGINE"
     if pgrep -f "mipnet train" >/dev/null; then echo "a run is going: scripts/campaign.sh stop first" >&2; exit 1; fi
@@ -39,7 +44,7 @@ case "${1:-}" in
     if [ -d "$run/checkpoint" ] && ls "$run"/checkpoint/ckpt-*.safetensors >/dev/null 2>&1; then
       args="--resume $run"
     else
-      if [ "$stage" = s1-128x256 ] && [ -f "$SHIPPED" ]; then
+      if { [ "$stage" = s1-128x256 ] || [ "${stage#cycle-}" != "$stage" ]; } && [ -f "$SHIPPED" ]; then
         mkdir -p "$run" && cp "$SHIPPED" "$run/restart-init.safetensors" && RESTART_INIT=$run/restart-init.safetensors
       fi
       args="$(stage_args "$stage") --out $run"
@@ -62,5 +67,5 @@ case "${1:-}" in
       grep '"val"' "$run/log.jsonl" 2>/dev/null | tail -n 1 | cut -c1-600
     done
     ;;
-  *) sed -n 2,11p "$0"; exit 2 ;;
+  *) sed -n 2,13p "$0"; exit 2 ;;
 esac
