@@ -1,9 +1,11 @@
 //! Times conv2d forward, dX and dW on the selected GEMM path for one shape (a profiling target).
 //!
 //! cargo run --release --example conv_time -- N CIN COUT H W KH KW STRIDE [REPEAT]
+//!
+//! `ONLY=fwd|dx|dw` times one of them; `WINOGRAD=off|on` overrides the automatic Winograd choice.
 
 use _core::gemm::{fma_peak_gflops, Isa};
-use _core::ops::conv::{conv2d_bwd, conv2d_fwd, Conv2dCfg, Conv2dNeed};
+use _core::ops::conv::{conv2d_bwd_ex, conv2d_fwd_ex, Conv2dCfg, Conv2dNeed, Conv2dRun, Winograd};
 use ndarray::{ArrayD, Dimension, IxDyn};
 use std::time::Instant;
 
@@ -18,8 +20,16 @@ fn main() -> Result<(), String> {
     let cfg = Conv2dCfg::new([s, s], [kh / 2, kw / 2]);
     let fill = |shape: &[usize]| ArrayD::from_shape_fn(IxDyn(shape), |i| ((i.as_array_view().sum() * 7919) % 101) as f32 / 101.0 - 0.5);
     let (x, wt) = (fill(&[n, cin, h, w]), fill(&[cout, cin, kh, kw]));
-    let y = conv2d_fwd(x.view(), wt.view(), None, &cfg).map_err(|e| e.to_string())?;
+    let winograd = match std::env::var("WINOGRAD").unwrap_or_default().as_str() {
+        "off" => Winograd::Off,
+        "on" => Winograd::On,
+        _ => Winograd::Auto,
+    };
+    let run = Conv2dRun { winograd, ..Conv2dRun::selected() };
+    let fwd = || conv2d_fwd_ex(x.view(), wt.view(), None, &cfg, false, run);
+    let y = fwd().map_err(|e| e.to_string())?;
     let g = y.mapv(|v| v * 0.5).into_dyn();
+    let bwd = |need| conv2d_bwd_ex(x.view(), wt.view(), g.view(), &cfg, need, run);
     let flops = 2.0 * (n * cout * cin * kh * kw * y.shape()[2] * y.shape()[3]) as f64;
     let threads = rayon::current_num_threads();
     let peak = fma_peak_gflops(threads, Isa::selected()).map_err(|e| e.to_string())?;
@@ -36,13 +46,13 @@ fn main() -> Result<(), String> {
     };
     let only = std::env::var("ONLY").unwrap_or_default();
     if only.is_empty() || only == "fwd" {
-        time("fwd", &|| drop(conv2d_fwd(x.view(), wt.view(), None, &cfg)));
+        time("fwd", &|| drop(fwd()));
     }
     if only.is_empty() || only == "dx" {
-        time("dx", &|| drop(conv2d_bwd(x.view(), wt.view(), g.view(), &cfg, Conv2dNeed { x: true, w: false, b: false })));
+        time("dx", &|| drop(bwd(Conv2dNeed { x: true, w: false, b: false })));
     }
     if only.is_empty() || only == "dw" {
-        time("dw", &|| drop(conv2d_bwd(x.view(), wt.view(), g.view(), &cfg, Conv2dNeed { x: false, w: true, b: false })));
+        time("dw", &|| drop(bwd(Conv2dNeed { x: false, w: true, b: false })));
     }
     Ok(())
 }

@@ -438,11 +438,12 @@ fn conv2d_winograd_f64_matches_direct_sum() {
             assert!(err < 1e-11, "{name} relu={relu}: max abs err {err}");
         }
     }
-    // dX of a stride-1 3x3 conv is a Winograd forward too
-    gradcheck_winograd("3x3 p1 winograd dx", [2, 4, 7, 9], [5, 4, 3, 3], Conv2dCfg::new([1, 1], [1, 1]), 61);
+    // dX of a stride-1 3x3 conv is a Winograd forward too, and dW is Winograd's adjoint
+    gradcheck_winograd("3x3 p1 winograd", [2, 4, 7, 9], [5, 4, 3, 3], Conv2dCfg::new([1, 1], [1, 1]), 61);
+    gradcheck_winograd("3x3 p0x2 winograd", [1, 3, 6, 10], [2, 3, 3, 3], Conv2dCfg::new([1, 1], [0, 2]), 64);
 }
 
-/// dx of one case with Winograd forced, against finite differences of the direct forward.
+/// dx and dw of one case with Winograd forced, against finite differences of the direct forward.
 fn gradcheck_winograd(name: &str, xs: [usize; 4], ws: [usize; 4], cfg: Conv2dCfg, seed: u64) {
     let mut rng = Rng::new(seed);
     let (x, w, b) = inputs(&mut rng, &xs, &ws);
@@ -450,8 +451,55 @@ fn gradcheck_winograd(name: &str, xs: [usize; 4], ws: [usize; 4], cfg: Conv2dCfg
     let g = rng.array(y.shape(), -1.0, 1.0);
     let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::selected(), winograd: Winograd::On };
     let grads = conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, run).unwrap();
-    let loss = |xp: &ArrayD<f64>| dot(&conv2d_fwd(xp.view(), w.view(), Some(b.view()), &cfg).unwrap().into_dyn(), &g);
-    gradcheck(name, &x, &grads.x.unwrap().into_dyn(), loss);
+    let loss_x = |xp: &ArrayD<f64>| dot(&conv2d_fwd(xp.view(), w.view(), Some(b.view()), &cfg).unwrap().into_dyn(), &g);
+    gradcheck(&format!("{name} dx"), &x, &grads.x.unwrap().into_dyn(), loss_x);
+    let loss_w = |wp: &ArrayD<f64>| dot(&conv2d_fwd(x.view(), wp.view(), Some(b.view()), &cfg).unwrap().into_dyn(), &g);
+    gradcheck(&format!("{name} dw"), &w, &grads.w.unwrap().into_dyn(), loss_w);
+}
+
+/// dW of a case by the direct path and by Winograd (forced), in the element type of the inputs.
+fn weight_grads<F: _core::Float>(x: &ArrayD<F>, w: &ArrayD<F>, g: &ArrayD<F>, cfg: &Conv2dCfg) -> [ArrayD<F>; 2] {
+    let need = Conv2dNeed { x: false, w: true, b: false };
+    [Winograd::Off, Winograd::On].map(|winograd| {
+        let run = Conv2dRun { plan: _core::gemm::Plan::<F>::selected(), winograd };
+        conv2d_bwd_ex(x.view(), w.view(), g.view(), cfg, need, run).unwrap().w.unwrap().into_dyn()
+    })
+}
+
+#[test]
+fn conv2d_winograd_weight_grad_matches_direct_in_f64() {
+    // every case, and a batch of 8 images whose tile rows span several chunks (so later chunks add
+    // into the first one's sums)
+    let mut rng = Rng::new(65);
+    let chunked = ("3x3_p1_64ch_batch8", [8, 64, 29, 35], [24, 64, 3, 3], [1, 1], [1, 1]);
+    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES.iter().chain([&chunked]) {
+        let cfg = Conv2dCfg::new(stride, padding);
+        let (x, w, _) = inputs(&mut rng, &xs, &ws);
+        let (ho, wo) = cfg.out_hw(xs[2], xs[3], 3, 3).unwrap();
+        let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0);
+        let [direct, winograd] = weight_grads(&x, &w, &g, &cfg);
+        let scale = direct.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let err = max_abs_diff(&winograd, &direct) / scale;
+        assert!(err < 1e-12, "{name}: winograd dW relative error {err:.2e}");
+    }
+}
+
+#[test]
+fn conv2d_winograd_weight_grad_f32_error_against_f64_is_small() {
+    // the f32 rounding of the transforms and of the sums over tiles, relative to the largest dW
+    let mut rng = Rng::new(66);
+    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES {
+        let cfg = Conv2dCfg::new(stride, padding);
+        let (x, w, _) = inputs(&mut rng, &xs, &ws);
+        let (ho, wo) = cfg.out_hw(xs[2], xs[3], 3, 3).unwrap();
+        let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0);
+        let [want, _] = weight_grads(&x, &w, &g, &cfg);
+        let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let [direct, winograd] = weight_grads(&x.mapv(|v| v as f32), &w.mapv(|v| v as f32), &g.mapv(|v| v as f32), &cfg);
+        let errs = [direct, winograd].map(|d| max_abs_diff(&d.mapv(f64::from), &want) / scale);
+        eprintln!("{name}: dW max error / max |dW|: direct {:.1e}, winograd {:.1e}", errs[0], errs[1]);
+        assert!(errs[1] < 2e-5, "{name}: winograd dW relative error {:.2e}", errs[1]);
+    }
 }
 
 #[test]
@@ -491,13 +539,15 @@ fn conv2d_winograd_results_do_not_depend_on_the_thread_count() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
             let y = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, true, run).unwrap();
-            (y, conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, run).unwrap().x)
+            let grads = conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, run).unwrap();
+            (y, grads.x, grads.w)
         })
     };
-    let (y1, dx1) = at(1);
+    let (y1, dx1, dw1) = at(1);
     for threads in [2, 3, 7] {
-        let (y, dx) = at(threads);
+        let (y, dx, dw) = at(threads);
         assert_eq!(y1, y, "forward, {threads} threads");
         assert_eq!(dx1, dx, "dx, {threads} threads");
+        assert_eq!(dw1, dw, "dw, {threads} threads");
     }
 }

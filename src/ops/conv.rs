@@ -19,7 +19,7 @@
 //!   back by col2im;
 //! - dW: `DW_GROUPS` partial sums fixed by the shapes, added in group order; B built from x in
 //!   pixel-major layout with tap-major K (`NhwcColsT`), or from cols tiles in scratch for few
-//!   input channels;
+//!   input channels; Winograd's adjoint for the stride-1 3x3 convs where it pays;
 //! - db: per output channel, Σ over images and pixels in order.
 
 use crate::gemm::{self, gemm_ex, Epilogue, Init, PackB, Plan, Prepacked, SourceA, Strided};
@@ -92,10 +92,10 @@ impl Conv2dCfg {
     }
 }
 
-/// Whether stride-1 3x3 convolutions (forward, and the dX that is a forward) use Winograd F(4x4, 3x3).
+/// Whether stride-1 3x3 convolutions (forward, the dX that is a forward, and dW) use Winograd F(4x4, 3x3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Winograd {
-    /// For f32 where it pays (enough channels and tiles); f64 (the gradient checks' type) stays
+    /// For f32 where it pays (enough channels and tiles; for dW, enough channels on both sides); f64 (the gradient checks' type) stays
     /// on the direct convolution.
     Auto,
     /// Never: the direct convolution.
@@ -119,14 +119,20 @@ impl<F: Float> Conv2dRun<'static, F> {
 }
 
 impl<F: Float> Conv2dRun<'_, F> {
-    /// Whether this run takes the Winograd path for geometry `g`.
-    fn winograd_for(&self, g: &Geom) -> bool {
+    /// Whether this run takes the Winograd path for geometry `g`, where `pays` says whether it pays
+    /// (`Winograd::Auto` on f32).
+    fn winograd_if(&self, g: &Geom, pays: fn(&Geom) -> bool) -> bool {
         let f32 = std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>();
         winograd::applies(g) && match self.winograd {
-            Winograd::Auto => f32 && winograd::pays(g),
+            Winograd::Auto => f32 && pays(g),
             Winograd::Off => false,
             Winograd::On => true,
         }
+    }
+
+    /// Whether the forward (and the dX that is a forward) of geometry `g` takes the Winograd path.
+    fn winograd_for(&self, g: &Geom) -> bool {
+        self.winograd_if(g, winograd::pays)
     }
 }
 
@@ -618,10 +624,9 @@ pub fn conv2d_bwd<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>
     conv2d_bwd_ex(x, w, g, cfg, need, Conv2dRun::selected())
 }
 
-/// [`conv2d_bwd`] on an explicit GEMM plan (any ISA path) and Winograd choice (for dX).
+/// [`conv2d_bwd`] on an explicit GEMM plan (any ISA path) and Winograd choice (for dX and dW).
 pub fn conv2d_bwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD<F>, cfg: &Conv2dCfg, need: Conv2dNeed,
                                run: Conv2dRun<F>) -> Result<Conv2dGrads<F>> {
-    let plan = run.plan;
     let gshape = g.shape().to_vec();
     let ops = Operands::new(x, w, None, cfg)?;
     let geo = ops.g;
@@ -633,7 +638,7 @@ pub fn conv2d_bwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, g: ArrayViewD
     let dy = g.as_standard_layout();
     let dys = dy.as_slice().ok_or_else(|| Error::shape(OP, "internal layout error: grad_output", &[]))?;
     let dx = if need.x { Some(input_grad(run, &geo, ops.wmat()?, dys)?) } else { None };
-    let dw = if need.w { Some(weight_grad(plan, &geo, ops.x()?, dys)?) } else { None };
+    let dw = if need.w { Some(weight_grad(run, &geo, ops.x()?, dys)?) } else { None };
     let db = need.b.then(|| bias_grad(&geo, dys));
     Ok(Conv2dGrads { x: dx, w: dw, b: db })
 }
@@ -735,7 +740,13 @@ const NHWC_MIN_CIN: usize = 16;
 ///   K is ordered tap-major (k' = t·Cin + c), so each B row (one pixel) is `taps` contiguous runs
 ///   of Cin values of xᵀ (zeros for taps in the padding); the result is permuted back to c·taps + t;
 /// - otherwise: cols tiles in this thread's scratch (x itself when pointwise), packed transposed.
-fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
+///
+/// A stride-1 3x3 f32 conv with enough channels takes [`winograd::weight_grad`] instead.
+fn weight_grad<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
+    let plan = run.plan;
+    if run.winograd_if(g, winograd::weight_grad_pays) {
+        return winograd::weight_grad(plan, g, xs, dy).into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout);
+    }
     let (pix, wlen, taps) = (g.pix(), g.cout * g.k(), g.kh * g.kw);
     let nhwc = g.cin >= NHWC_MIN_CIN && !g.pointwise();
     // the pieces: (image, pixel range), NHWC: the n·pix pixels cut in DW_GROUPS ranges; else tiles

@@ -5,6 +5,8 @@
 //! and V[c] = Bᵀ · `d[c]` · B (6 x 6, the input patch transformed): the channel sum is 36
 //! independent GEMMs `M_ξ` = `U_ξ` · `V_ξ` ([Cout, Cin] · [Cin, tiles]) on the packed GEMM, one per
 //! position ξ of the 6 x 6 transform. Matrices from Lavin & Gray (2016), points 0, ±1, ±2, ∞.
+//! The weight gradient is the adjoint of the same algorithm (see [`weight_grad`]): 36 GEMMs over
+//! the tiles, then `dW[o, c]` = Gᵀ · `dU[o, c]` · G.
 //!
 //! Work is split into tasks (image, band of tile rows, range of output channels) fixed by the
 //! shapes and the thread count; every output is computed from its own tile by the same sequence of
@@ -15,7 +17,7 @@
 use super::Geom;
 use crate::gemm::{self, Init, Isa, Plan, Prepacked, SourceA, Strided};
 use crate::{Float, Result};
-use ndarray::Array3;
+use ndarray::{Array2, Array3};
 use rayon::prelude::*;
 use std::ops::{Add, Mul, Range, Sub};
 
@@ -41,6 +43,18 @@ pub(super) fn applies(g: &Geom) -> bool {
 pub(super) fn pays(g: &Geom) -> bool {
     let tiles = g.n * g.ho.div_ceil(TILE) * g.wo.div_ceil(TILE);
     g.cin.min(g.cout) >= MIN_CHANNELS && tiles >= MIN_TILES
+}
+
+/// Least Cin·Cout / (Cin + Cout) for the Winograd weight gradient: per tile it transforms Cin + Cout
+/// planes and then saves GEMM work in proportion to Cin·Cout, and its two GEMM operands are both
+/// packed per call (the forward's weights are packed once). Measured on an AMD Zen 4 (2 threads),
+/// dW against the direct path: 64->64 and 96->96 (32, 48) slower, 128->94 (54) even,
+/// 128->128 (64) 1.2x faster, 128->256 (85) 1.35x, 352->256 (148) 1.9x.
+const MIN_DW_CHANNEL_RATIO: usize = 56;
+
+/// Whether the Winograd weight gradient pays (see [`MIN_DW_CHANNEL_RATIO`]).
+pub(super) fn weight_grad_pays(g: &Geom) -> bool {
+    pays(g) && g.cin * g.cout >= MIN_DW_CHANNEL_RATIO * (g.cin + g.cout)
 }
 
 /// What the 1-D transforms compute on: one value F, or [`Lanes`] of F (one per tile).
@@ -88,15 +102,15 @@ impl<F: Float> Mul<F> for Lanes<F> {
     }
 }
 
-/// A 1-D transform of 6 values into N, written once for one value and for [`Lanes`].
-trait Transform1d<const N: usize> {
-    fn apply<F: Float, T: Lane<F>>(d: [T; 6]) -> [T; N];
+/// A 1-D transform of M values into N, written once for one value and for [`Lanes`].
+trait Transform1d<const M: usize, const N: usize> {
+    fn apply<F: Float, T: Lane<F>>(d: [T; M]) -> [T; N];
 }
 
 /// v = Bᵀ d for one 6-vector d: the input transform along one axis.
 struct InputTransform;
 
-impl Transform1d<6> for InputTransform {
+impl Transform1d<6, 6> for InputTransform {
     #[inline(always)]
     fn apply<F: Float, T: Lane<F>>(d: [T; 6]) -> [T; 6] {
         let (c2, c4, c5, m2, m4) = (F::c(2.0), F::c(4.0), F::c(5.0), F::c(-2.0), F::c(-4.0));
@@ -111,15 +125,15 @@ impl Transform1d<6> for InputTransform {
     }
 }
 
-/// dst[k][tx] = X(src[0][tx], .., src[5][tx])[k] for every tile tx of the rows: blocks of LANES
+/// dst[k][tx] = X(src[0][tx], .., src[M − 1][tx])[k] for every tile tx of the rows: blocks of LANES
 /// tiles on [`Lanes`], the rest one tile at a time (the same operations on F).
 #[inline(always)]
-fn map_tiles<F: Float, X: Transform1d<N>, const N: usize>(src: [&[F]; 6], dst: &mut [&mut [F]; N]) {
+fn map_tiles<F: Float, X: Transform1d<M, N>, const M: usize, const N: usize>(src: [&[F]; M], dst: &mut [&mut [F]; N]) {
     let tw = dst[0].len();
     let full = tw / LANES * LANES;
     for t0 in (0..full).step_by(LANES) {
         // tiles t0 .. t0 + LANES of every row
-        let mut d = [Lanes([F::zero(); LANES]); 6];
+        let mut d = [Lanes([F::zero(); LANES]); M];
         for (dj, sj) in d.iter_mut().zip(&src) {
             dj.0.copy_from_slice(&sj[t0..t0 + LANES]);
         }
@@ -129,7 +143,7 @@ fn map_tiles<F: Float, X: Transform1d<N>, const N: usize>(src: [&[F]; 6], dst: &
         }
     }
     for tx in full..tw {
-        let out = X::apply::<F, F>([src[0][tx], src[1][tx], src[2][tx], src[3][tx], src[4][tx], src[5][tx]]);
+        let out = X::apply::<F, F>(std::array::from_fn(|j| src[j][tx]));
         for (row, &o) in dst.iter_mut().zip(&out) {
             row[tx] = o;
         }
@@ -148,13 +162,35 @@ fn weight_1d<F: Float>(g: [F; 3]) -> [F; 6] {
 /// y = Aᵀ m for one 6-vector m: the output transform along one axis.
 struct OutputTransform;
 
-impl Transform1d<4> for OutputTransform {
+impl Transform1d<6, 4> for OutputTransform {
     #[inline(always)]
     fn apply<F: Float, T: Lane<F>>(m: [T; 6]) -> [T; 4] {
         let (c2, c4, c8) = (F::c(2.0), F::c(4.0), F::c(8.0));
         let (s12, d12, s34, d34) = (m[1] + m[2], m[1] - m[2], m[3] + m[4], m[3] - m[4]);
         [m[0] + s12 + s34, d12 + d34 * c2, s12 + s34 * c4, d12 + d34 * c8 + m[5]]
     }
+}
+
+/// m = A y for one 4-vector y: the adjoint of [`OutputTransform`] along one axis (a tile of dY
+/// into the transform domain).
+struct GradOutputTransform;
+
+impl Transform1d<4, 6> for GradOutputTransform {
+    #[inline(always)]
+    fn apply<F: Float, T: Lane<F>>(y: [T; 4]) -> [T; 6] {
+        let (c2, c4, c8) = (F::c(2.0), F::c(4.0), F::c(8.0));
+        let (s02, d13) = (y[0] + y[2] * c4, y[1] * c2 + y[3] * c8);
+        [y[0], y[0] + y[1] + y[2] + y[3], y[0] - y[1] + y[2] - y[3], s02 + d13, s02 - d13, y[3]]
+    }
+}
+
+/// g = Gᵀ u for one 6-vector u: the adjoint of [`weight_1d`] along one axis.
+#[inline(always)]
+fn weight_grad_1d<F: Float>(u: [F; 6]) -> [F; 3] {
+    let (q, s, t) = (F::c(0.25), F::c(1.0 / 6.0), F::c(1.0 / 12.0));
+    let e = F::c(1.0 / 24.0);
+    let (s12, d12, s34, d34) = (u[1] + u[2], u[1] - u[2], u[3] + u[4], u[3] - u[4]);
+    [q * u[0] - s * s12 + e * s34, -s * d12 + t * d34, -s * s12 + s * s34 + u[5]]
 }
 
 /// The transformed weights: `U_ξ` = (G · `w[o, c]` · Gᵀ)[ξ] as 36 matrices [Cout, Cin], packed for `plan`.
@@ -350,23 +386,25 @@ fn input_transform<F: Float>(plan: &Plan<F>, g: &Geom, xc: &[F], rows: Range<usi
 isa_version!(input_row_avx512, input_row, "avx512f", (width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize));
 isa_version!(input_row_avx2, input_row, "avx2,fma", (width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize));
 
-/// Six disjoint rows of `len` elements of `buf`, row r at `first + r·stride` (stride >= len): the
+/// N disjoint rows of `len` elements of `buf`, row r at `first + r·stride` (stride >= len): the
 /// destinations of a 1-D transform, as exact-length slices so the loops over them vectorise
 /// (indexing `buf` at `first + r·stride + tx` kept a bounds check per element, which left the
 /// transforms scalar).
-fn six_rows_mut<F>(buf: &mut [F], first: usize, stride: usize, len: usize) -> [&mut [F]; 6] {
-    assert!(stride >= len, "six_rows_mut: rows overlap");
+#[inline(always)]
+fn strided_rows_mut<F, const N: usize>(buf: &mut [F], first: usize, stride: usize, len: usize) -> [&mut [F]; N] {
+    assert!(stride >= len, "strided_rows_mut: rows overlap");
     let mut rest = &mut buf[first..];
     std::array::from_fn(|r| {
         // row r spans first + r·stride .. + len; the next one starts stride after it
         let (row, tail) = std::mem::take(&mut rest).split_at_mut(len);
-        rest = if r < 5 { &mut tail[stride - len..] } else { tail };
+        rest = if r + 1 < N { &mut tail[stride - len..] } else { tail };
         row
     })
 }
 
-/// Six rows of `len` elements of `buf`, row r at `first + r·stride`, as exact-length slices.
-fn six_rows<F>(buf: &[F], first: usize, stride: usize, len: usize) -> [&[F]; 6] {
+/// N rows of `len` elements of `buf`, row r at `first + r·stride`, as exact-length slices.
+#[inline(always)]
+fn strided_rows<F, const N: usize>(buf: &[F], first: usize, stride: usize, len: usize) -> [&[F]; N] {
     std::array::from_fn(|r| &buf[first + r * stride..first + r * stride + len])
 }
 
@@ -388,15 +426,15 @@ fn input_row<F: Float>(width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], 
         let p = |m: usize, shift: usize| &phase[m * (tw + 1) + shift..m * (tw + 1) + shift + tw];
         let (d0, d1, d2, d3, d4, d5) = (p(0, 0), p(1, 0), p(2, 0), p(3, 0), p(0, 1), p(1, 1));
         // ex[r][k][tx] = (Bᵀ d_row)[k] for the 6 values d_j = row[4·tx + j]
-        let mut e = six_rows_mut(ex, r * 6 * tw, tw, tw);
-        map_tiles::<F, InputTransform, 6>([d0, d1, d2, d3, d4, d5], &mut e);
+        let mut e = strided_rows_mut(ex, r * 6 * tw, tw, tw);
+        map_tiles::<F, InputTransform, 6, 6>([d0, d1, d2, d3, d4, d5], &mut e);
     }
     for b in 0..6 {
         // column b of every patch: ex[r][b][tx] for r = 0..6 (rows 6·tw apart), along y into ξ = 6a + b
-        let c = six_rows(ex, b * tw, 6 * tw, tw);
+        let c = strided_rows(ex, b * tw, 6 * tw, tw);
         // V[6a + b] rows: at + (6a + b)·xi_stride, i.e. 6·xi_stride apart from b·xi_stride
-        let mut out_rows = six_rows_mut(v, b * xi_stride + at, 6 * xi_stride, tw);
-        map_tiles::<F, InputTransform, 6>(c, &mut out_rows);
+        let mut out_rows = strided_rows_mut(v, b * xi_stride + at, 6 * xi_stride, tw);
+        map_tiles::<F, InputTransform, 6, 6>(c, &mut out_rows);
     }
 }
 
@@ -437,18 +475,17 @@ fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, 
     let Rows { patch, ex, .. } = buf;
     for b in 0..6 {
         // column b: m[6a + b] for a = 0..6 (rows 6·xi_stride apart), along y into ex[b][r][tx], r < 4
-        let mv = six_rows(m, b * xi_stride + at, 6 * xi_stride, tw);
-        let [e0, e1, e2, e3, ..] = six_rows_mut(&mut ex[b * TILE * tw..], 0, tw, tw);
-        map_tiles::<F, OutputTransform, 4>(mv, &mut [e0, e1, e2, e3]);
+        let mv = strided_rows(m, b * xi_stride + at, 6 * xi_stride, tw);
+        let mut e = strided_rows_mut(&mut ex[b * TILE * tw..], 0, tw, tw);
+        map_tiles::<F, OutputTransform, 6, 4>(mv, &mut e);
     }
     for r in 0..TILE {
         // output row r of every tile: (ex[b][r][tx] for b = 0..6, rows 4·tw apart) along x into
         // q[c][tx] (ex rows 24..28, free), then interleaved into columns 4·tx + c
         let (e, free) = ex.split_at_mut(6 * TILE * tw);
-        let e = six_rows(e, r * tw, TILE * tw, tw);
-        let [q0, q1, q2, q3, ..] = six_rows_mut(free, 0, tw, tw);
-        let mut q = [q0, q1, q2, q3];
-        map_tiles::<F, OutputTransform, 4>(e, &mut q);
+        let e = strided_rows(e, r * tw, TILE * tw, tw);
+        let mut q = strided_rows_mut(free, 0, tw, tw);
+        map_tiles::<F, OutputTransform, 6, 4>(e, &mut q);
         let out_row = &mut patch[r * TILE * tw..(r + 1) * TILE * tw];
         for (tx, quad) in out_row.chunks_exact_mut(TILE).enumerate() {
             for (c, slot) in quad.iter_mut().enumerate() {
@@ -456,5 +493,139 @@ fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, 
                 *slot = if relu { o.max(F::zero()) } else { o };
             }
         }
+    }
+}
+
+/// V and dM bytes of one chunk of tile rows in the weight gradient (a chunk's 36 GEMMs then have
+/// K = its tiles; the chunks are fixed by the shapes, so dW does not depend on the threads).
+const DW_CHUNK_BYTES: usize = 12 << 20;
+
+/// dW of a convolution where [`applies`] holds, as the matrix `[Cout, Cin·9]`: with M = U ⊙ V per
+/// tile (see the module doc), dU_ξ = Σ_tiles dM_ξ · V_ξᵀ ([Cout, tiles] · [tiles, Cin]) where
+/// dM = A · `dY_tile` · Aᵀ (the adjoint of the output transform), then `dW[o, c]` = Gᵀ · `dU[o, c]` · G.
+///
+/// The tiles (image-major, whole tile rows) are taken in chunks: per chunk, V and dM are
+/// transformed in parallel over channels, then the 36 GEMMs run in parallel over ξ, each summing
+/// into its own dU_ξ (the first chunk overwrites, the others add), in chunk order.
+pub(super) fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]) -> Array2<F> {
+    let (tw, th) = (g.wo.div_ceil(TILE), g.ho.div_ceil(TILE));
+    let (plane, pix) = (g.h * g.w, g.ho * g.wo);
+    let row_bytes = XI * tw * (g.cin + g.cout) * std::mem::size_of::<F>();
+    let chunk_rows = (DW_CHUNK_BYTES / row_bytes).max(1).min(g.n * th);
+    let mut v = vec![F::zero(); g.cin * XI * chunk_rows * tw];
+    let mut dm = vec![F::zero(); g.cout * XI * chunk_rows * tw];
+    let mut du = vec![F::zero(); XI * g.cout * g.cin];
+    for (ci, r0) in (0..g.n * th).step_by(chunk_rows).enumerate() {
+        let chunk = r0..(r0 + chunk_rows).min(g.n * th);
+        let tiles = chunk.len() * tw;
+        // the chunk's pieces (image n, its tile rows, first tile in the chunk): global row q = n·th + ty
+        let pieces: Vec<(usize, Range<usize>, usize)> = (chunk.start / th..chunk.end.div_ceil(th))
+            .map(|n| {
+                let (a, b) = (chunk.start.max(n * th), chunk.end.min((n + 1) * th));
+                (n, a - n * th..b - n * th, (a - chunk.start) * tw)
+            })
+            .collect();
+        // V[c][ξ][tile] for the chunk, channel by channel
+        v[..g.cin * XI * tiles].par_chunks_mut(XI * tiles).enumerate().for_each_init(
+            || Rows::new(tw),
+            |buf, (c, vc)| {
+                for (n, rows, off) in &pieces {
+                    let xc = &xs[n * g.img() + c * plane..][..plane];
+                    input_transform(plan, g, xc, rows.clone(), tw, vc, *off, tiles, buf);
+                }
+            },
+        );
+        // dM[o][ξ][tile] for the chunk, output channel by output channel
+        dm[..g.cout * XI * tiles].par_chunks_mut(XI * tiles).enumerate().for_each_init(
+            || Rows::new(tw),
+            |buf, (o, mo)| {
+                for (n, rows, off) in &pieces {
+                    let dyo = &dy[(n * g.cout + o) * pix..][..pix];
+                    grad_output_transform(plan, g, dyo, rows.clone(), tw, mo, *off, tiles, buf);
+                }
+            },
+        );
+        let (vs, ms) = (&v, &dm);
+        du.par_chunks_mut(g.cout * g.cin).enumerate().for_each(|(xi, dux)| {
+            let init = if ci == 0 { Init::Zero } else { Init::Load };
+            // dU_ξ (+)= dM_ξ · V_ξᵀ: dM_ξ[o, t] at o·36·T + ξ·T + t, V_ξᵀ[t, c] at c·36·T + ξ·T + t
+            let a = Strided { ptr: ms[xi * tiles..].as_ptr(), rows: g.cout, cols: tiles, rs: (XI * tiles) as isize, cs: 1, scale: F::one() };
+            let b = Strided { ptr: vs[xi * tiles..].as_ptr(), rows: tiles, cols: g.cin, rs: 1, cs: (XI * tiles) as isize, scale: F::one() };
+            // SAFETY: dU_ξ is this task's own Cout x Cin plane; A and B lie inside the chunk's dM and V.
+            unsafe { gemm::run(plan, g.cout, g.cin, tiles, SourceA::Strided(&a), &b, dux.as_mut_ptr(), g.cin as isize, 1, init, false) };
+        });
+    }
+    let mut dw = Array2::<F>::zeros((g.cout, g.cin * 9));
+    let pairs = g.cout * g.cin;
+    if let Some(d) = dw.as_slice_mut() {
+        d.par_chunks_mut(9).enumerate().for_each(|(oc, w9)| {
+            // dU[o, c] = (dU_ξ[o, c] for ξ = 6a + b), oc = o·Cin + c; rows of Gᵀ·dU (over b), then
+            // dW[o, c][i][j] = (Gᵀ · column j of them)[i]
+            let r: [[F; 3]; 6] = std::array::from_fn(|a| weight_grad_1d(std::array::from_fn(|b| du[(6 * a + b) * pairs + oc])));
+            for j in 0..3 {
+                let col = weight_grad_1d(std::array::from_fn(|a| r[a][j]));
+                for (i, &value) in col.iter().enumerate() {
+                    w9[3 * i + j] = value;
+                }
+            }
+        });
+    }
+    dw
+}
+
+/// `dM[ξ][tile]` (at `dm[ξ·xi_stride + off + tile]`) = (A · y · Aᵀ)[ξ] for the tiles of rows `rows`,
+/// y the 4 x 4 block of the dY plane `dyo` at rows 4·ty.., columns 4·tx.. (0 outside Ho x Wo).
+#[allow(clippy::too_many_arguments)]
+fn grad_output_transform<F: Float>(plan: &Plan<F>, g: &Geom, dyo: &[F], rows: Range<usize>, tw: usize, dm: &mut [F],
+                                   off: usize, xi_stride: usize, buf: &mut Rows<F>) {
+    let width = TILE * tw;
+    for (band_row, ty) in rows.enumerate() {
+        for (r, row) in buf.patch.chunks_exact_mut(width).take(TILE).enumerate() {
+            // dY row oy = 4·ty + r, columns 0..Wo, zero beyond
+            let oy = TILE * ty + r;
+            row.fill(F::zero());
+            if oy < g.ho {
+                row[..g.wo].copy_from_slice(&dyo[oy * g.wo..(oy + 1) * g.wo]);
+            }
+        }
+        let at = off + band_row * tw;
+        match plan.isa {
+            // SAFETY: the plan's ISA is supported by this CPU.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => unsafe { grad_output_row_avx512(tw, buf, dm, at, xi_stride) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => unsafe { grad_output_row_avx2(tw, buf, dm, at, xi_stride) },
+            _ => grad_output_row(tw, buf, dm, at, xi_stride),
+        }
+    }
+}
+
+isa_version!(grad_output_row_avx512, grad_output_row, "avx512f", (tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize, xi_stride: usize));
+isa_version!(grad_output_row_avx2, grad_output_row, "avx2,fma", (tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize, xi_stride: usize));
+
+/// The adjoint output transform of one row of tiles from its 4 dY rows (`buf.patch`, 4·tw values
+/// each): along x per row (into `buf.ex`), then along y into `dm[ξ·xi_stride + at + tx]`.
+#[inline(always)]
+fn grad_output_row<F: Float>(tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize, xi_stride: usize) {
+    let Rows { patch, phase, ex } = buf;
+    for (r, row) in patch.chunks_exact(TILE * tw).take(TILE).enumerate() {
+        // phase[m][tx] = row[4·tx + m]: the tile's column m
+        for (tx, q) in row.chunks_exact(TILE).enumerate() {
+            for (m, &value) in q.iter().enumerate() {
+                phase[m * tw + tx] = value;
+            }
+        }
+        // ex[r][k][tx] = (A y_row)[k] for the 4 values y_m = row[4·tx + m]
+        let y = strided_rows(phase, 0, tw, tw);
+        let mut e = strided_rows_mut(ex, r * 6 * tw, tw, tw);
+        map_tiles::<F, GradOutputTransform, 4, 6>(y, &mut e);
+    }
+    for b in 0..6 {
+        // column b of every tile: ex[r][b][tx] for r = 0..4 (rows 6·tw apart), along y into ξ = 6a + b
+        let c = strided_rows(ex, b * tw, 6 * tw, tw);
+        // dM[6a + b] rows: at + (6a + b)·xi_stride, i.e. 6·xi_stride apart from b·xi_stride
+        let mut out_rows = strided_rows_mut(dm, b * xi_stride + at, 6 * xi_stride, tw);
+        map_tiles::<F, GradOutputTransform, 4, 6>(c, &mut out_rows);
     }
 }
