@@ -421,6 +421,16 @@ const WINOGRAD_CASES: &[Case] = &[
     // 19 tiles per row: one vector block of the row transforms (16 tiles) and a tail of 3
     ("3x3_p1_wide", [1, 3, 6, 75], [4, 3, 3, 3], [1, 1], [1, 1]),
     ("3x3_p1_64ch", [2, 64, 29, 35], [24, 64, 3, 3], [1, 1], [1, 1]),
+    // F(4, 5) along rows and along columns: the GRUs' paddings, wider and odd ones, the row
+    // transforms' vector blocks (16 tiles) with tails, and padding rows of a 1x5 kernel
+    ("1x5_p0x2", [2, 3, 5, 13], [4, 3, 1, 5], [1, 1], [0, 2]),
+    ("1x5_p0x2_wide", [1, 3, 3, 75], [4, 3, 1, 5], [1, 1], [0, 2]),
+    ("1x5_p1x4", [2, 3, 4, 9], [3, 3, 1, 5], [1, 1], [1, 4]),
+    ("5x1_p2x0", [2, 3, 13, 7], [4, 3, 5, 1], [1, 1], [2, 0]),
+    ("5x1_p2x0_wide", [1, 3, 9, 37], [4, 3, 5, 1], [1, 1], [2, 0]),
+    ("5x1_p3x1", [1, 2, 7, 5], [3, 2, 5, 1], [1, 1], [3, 1]),
+    ("1x5_p0x2_64ch", [2, 64, 9, 35], [24, 64, 1, 5], [1, 1], [0, 2]),
+    ("5x1_p2x0_64ch", [2, 64, 29, 9], [24, 64, 5, 1], [1, 1], [2, 0]),
 ];
 
 #[test]
@@ -441,6 +451,8 @@ fn conv2d_winograd_f64_matches_direct_sum() {
     // dX of a stride-1 3x3 conv is a Winograd forward too, and dW is Winograd's adjoint
     gradcheck_winograd("3x3 p1 winograd", [2, 4, 7, 9], [5, 4, 3, 3], Conv2dCfg::new([1, 1], [1, 1]), 61);
     gradcheck_winograd("3x3 p0x2 winograd", [1, 3, 6, 10], [2, 3, 3, 3], Conv2dCfg::new([1, 1], [0, 2]), 64);
+    gradcheck_winograd("1x5 p0x2 winograd", [2, 3, 3, 11], [2, 3, 1, 5], Conv2dCfg::new([1, 1], [0, 2]), 67);
+    gradcheck_winograd("5x1 p2x0 winograd", [2, 3, 9, 4], [2, 3, 5, 1], Conv2dCfg::new([1, 1], [2, 0]), 68);
 }
 
 /// dx and dw of one case with Winograd forced, against finite differences of the direct forward.
@@ -471,11 +483,14 @@ fn conv2d_winograd_weight_grad_matches_direct_in_f64() {
     // every case, and a batch of 8 images whose tile rows span several chunks (so later chunks add
     // into the first one's sums)
     let mut rng = Rng::new(65);
-    let chunked = ("3x3_p1_64ch_batch8", [8, 64, 29, 35], [24, 64, 3, 3], [1, 1], [1, 1]);
-    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES.iter().chain([&chunked]) {
+    let chunked = [
+        ("3x3_p1_64ch_batch8", [8, 64, 29, 35], [24, 64, 3, 3], [1, 1], [1, 1]),
+        ("1x5_p0x2_64ch_batch8", [8, 64, 64, 35], [24, 64, 1, 5], [1, 1], [0, 2]),
+    ];
+    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES.iter().chain(&chunked) {
         let cfg = Conv2dCfg::new(stride, padding);
         let (x, w, _) = inputs(&mut rng, &xs, &ws);
-        let (ho, wo) = cfg.out_hw(xs[2], xs[3], 3, 3).unwrap();
+        let (ho, wo) = cfg.out_hw(xs[2], xs[3], ws[2], ws[3]).unwrap();
         let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0);
         let [direct, winograd] = weight_grads(&x, &w, &g, &cfg);
         let scale = direct.iter().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -491,7 +506,7 @@ fn conv2d_winograd_weight_grad_f32_error_against_f64_is_small() {
     for &(name, xs, ws, stride, padding) in WINOGRAD_CASES {
         let cfg = Conv2dCfg::new(stride, padding);
         let (x, w, _) = inputs(&mut rng, &xs, &ws);
-        let (ho, wo) = cfg.out_hw(xs[2], xs[3], 3, 3).unwrap();
+        let (ho, wo) = cfg.out_hw(xs[2], xs[3], ws[2], ws[3]).unwrap();
         let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0);
         let [want, _] = weight_grads(&x, &w, &g, &cfg);
         let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -529,25 +544,27 @@ fn conv2d_winograd_f32_error_against_f64_is_small() {
 fn conv2d_winograd_results_do_not_depend_on_the_thread_count() {
     // the task split (bands, output-channel ranges) follows the threads; every output does not
     let mut rng = Rng::new(63);
-    let (_, xs, ws, stride, padding) = WINOGRAD_CASES[WINOGRAD_CASES.len() - 1];
-    let cfg = Conv2dCfg::new(stride, padding);
-    let (x, w, b) = inputs(&mut rng, &xs, &ws);
-    let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
-    let g = rng.array(&[xs[0], ws[0], xs[2], xs[3]], -1.0, 1.0).mapv(|v| v as f32);
-    let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd: Winograd::On };
-    let at = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        pool.install(|| {
-            let y = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, true, run).unwrap();
-            let grads = conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, run).unwrap();
-            (y, grads.x, grads.w)
-        })
-    };
-    let (y1, dx1, dw1) = at(1);
-    for threads in [2, 3, 7] {
-        let (y, dx, dw) = at(threads);
-        assert_eq!(y1, y, "forward, {threads} threads");
-        assert_eq!(dx1, dx, "dx, {threads} threads");
-        assert_eq!(dw1, dw, "dw, {threads} threads");
+    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES.iter().filter(|c| c.0.ends_with("64ch")) {
+        let cfg = Conv2dCfg::new(stride, padding);
+        let (x, w, b) = inputs(&mut rng, &xs, &ws);
+        let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
+        let (ho, wo) = cfg.out_hw(xs[2], xs[3], ws[2], ws[3]).unwrap();
+        let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0).mapv(|v| v as f32);
+        let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd: Winograd::On };
+        let at = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let y = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, true, run).unwrap();
+                let grads = conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, run).unwrap();
+                (y, grads.x, grads.w)
+            })
+        };
+        let (y1, dx1, dw1) = at(1);
+        for threads in [2, 3, 7] {
+            let (y, dx, dw) = at(threads);
+            assert_eq!(y1, y, "{name} forward, {threads} threads");
+            assert_eq!(dx1, dx, "{name} dx, {threads} threads");
+            assert_eq!(dw1, dw, "{name} dw, {threads} threads");
+        }
     }
 }

@@ -1,0 +1,232 @@
+//! F(4, 5): the transforms of a 1x5 kernel over tiles of 4 output pixels along a row (`Along::X`),
+//! or of a 5x1 kernel over tiles of 4 along a column (`Along::Y`), each from 8 input values:
+//! 8 multiplies per (output, input) channel pair instead of 20. Toom-Cook points 0, ±1, ±2, ±1/2, ∞
+//! (the points of F(6, 3)); the matrices were derived with exact fractions and are checked in f64
+//! against the direct convolution by `tests_rs/conv.rs`.
+
+use super::lanes::{map_tiles, per_isa, split_phases, strided_rows, strided_rows_mut, Lane, Rows, Transform1d};
+use super::super::Geom;
+use crate::gemm::Isa;
+use crate::Float;
+
+/// Output pixels per tile.
+const TILE: usize = 4;
+
+/// The axis the kernel and the tiles run along.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Along {
+    /// A 1x5 kernel: a tile is 4 output pixels of one row; tile rows are output rows.
+    X,
+    /// A 5x1 kernel: a tile is 4 output pixels of one column; a tile row holds Wo tiles.
+    Y,
+}
+
+/// v = Bᵀ d for one 8-vector d: the input transform.
+struct InputTransform;
+
+impl Transform1d<8, 8> for InputTransform {
+    #[inline(always)]
+    fn apply<F: Float, T: Lane<F>>(d: [T; 8]) -> [T; 8] {
+        let (c2, c4, c5, c17, c21) = (F::c(2.0), F::c(4.0), F::c(5.0), F::c(17.0 / 4.0), F::c(21.0 / 4.0));
+        let (h, q, c52, c54) = (F::c(0.5), F::c(0.25), F::c(5.0 / 2.0), F::c(5.0 / 4.0));
+        // rows 2k − 1 and 2k of Bᵀ: an even part s (d2, d4, d6) plus or minus an odd part t (d1, d3, d5)
+        let (s1, t1) = (d[2] + d[6] - d[4] * c17, d[1] + d[5] - d[3] * c17);
+        let (s2, t2) = (d[2] * q - d[4] * c54 + d[6], d[1] * h - d[3] * c52 + d[5] * c2);
+        let (s3, t3) = (d[2] * c4 - d[4] * c5 + d[6], d[1] * c2 - d[3] * c52 + d[5] * h);
+        [d[0] - d[6] + (d[4] - d[2]) * c21, s1 + t1, s1 - t1, s2 + t2, s2 - t2, s3 + t3, s3 - t3, d[7] - d[1] + (d[3] - d[5]) * c21]
+    }
+}
+
+/// y = Aᵀ m for one 8-vector m: the output transform.
+struct OutputTransform;
+
+impl Transform1d<8, 4> for OutputTransform {
+    #[inline(always)]
+    fn apply<F: Float, T: Lane<F>>(m: [T; 8]) -> [T; 4] {
+        let (c2, c4, c8, h, q, e) = (F::c(2.0), F::c(4.0), F::c(8.0), F::c(0.5), F::c(0.25), F::c(0.125));
+        // sums and differences of the pairs of points ±1, ±2, ±1/2
+        let (s1, d1, s2, d2, s3, d3) = (m[1] + m[2], m[1] - m[2], m[3] + m[4], m[3] - m[4], m[5] + m[6], m[5] - m[6]);
+        [m[0] + s1 + s2 + s3, d1 + d2 * c2 + d3 * h, s1 + s2 * c4 + s3 * q, d1 + d2 * c8 + d3 * e + m[7]]
+    }
+}
+
+/// m = A y for one 4-vector y: the adjoint of [`OutputTransform`] (a tile of dY into the transform domain).
+struct GradOutputTransform;
+
+impl Transform1d<4, 8> for GradOutputTransform {
+    #[inline(always)]
+    fn apply<F: Float, T: Lane<F>>(y: [T; 4]) -> [T; 8] {
+        let (c2, c4, c8, h, q, e) = (F::c(2.0), F::c(4.0), F::c(8.0), F::c(0.5), F::c(0.25), F::c(0.125));
+        // at the points ±p: an even part (y0, y2) plus or minus an odd part (y1, y3)
+        let (e1, o1) = (y[0] + y[2], y[1] + y[3]);
+        let (e2, o2) = (y[0] + y[2] * c4, y[1] * c2 + y[3] * c8);
+        let (e3, o3) = (y[0] + y[2] * q, y[1] * h + y[3] * e);
+        [y[0], e1 + o1, e1 - o1, e2 + o2, e2 - o2, e3 + o3, e3 - o3, y[3]]
+    }
+}
+
+/// G (8 x 5): u = G w transforms the 5 taps of one (output, input) channel pair.
+const G: [[f64; 5]; 8] = [
+    [1.0, 0.0, 0.0, 0.0, 0.0],
+    [-2.0 / 9.0, -2.0 / 9.0, -2.0 / 9.0, -2.0 / 9.0, -2.0 / 9.0],
+    [-2.0 / 9.0, 2.0 / 9.0, -2.0 / 9.0, 2.0 / 9.0, -2.0 / 9.0],
+    [1.0 / 90.0, 1.0 / 45.0, 2.0 / 45.0, 4.0 / 45.0, 8.0 / 45.0],
+    [1.0 / 90.0, -1.0 / 45.0, 2.0 / 45.0, -4.0 / 45.0, 8.0 / 45.0],
+    [32.0 / 45.0, 16.0 / 45.0, 8.0 / 45.0, 4.0 / 45.0, 2.0 / 45.0],
+    [32.0 / 45.0, -16.0 / 45.0, 8.0 / 45.0, -4.0 / 45.0, 2.0 / 45.0],
+    [0.0, 0.0, 0.0, 0.0, 1.0],
+];
+
+/// `u[k]` = Σ_j G[k][j] · `w[j]` for the 5 taps w of one channel pair.
+pub(super) fn weight<F: Float>(w: &[F], u: &mut [F]) {
+    for (uk, gk) in u.iter_mut().zip(&G) {
+        *uk = gk.iter().zip(w).fold(F::zero(), |acc, (&gkj, &wj)| acc + F::c(gkj) * wj);
+    }
+}
+
+/// `dw[j]` = Σ_k G[k][j] · du(k): the adjoint of [`weight`].
+pub(super) fn weight_grad<F: Float>(du: impl Fn(usize) -> F, dw: &mut [F]) {
+    for (j, dwj) in dw.iter_mut().enumerate() {
+        *dwj = G.iter().enumerate().fold(F::zero(), |acc, (k, gk)| acc + F::c(gk[j]) * du(k));
+    }
+}
+
+/// `V[ξ]` rows of tile row ty: `v[ξ·xi_stride + at + t]` = (Bᵀ d)[ξ], d the 8 input values of tile t
+/// (along x: `x[ty − ph, 4·t − pw ..]`; along y: `x[4·ty − ph .., t − pw]`; 0 outside the plane `xc`).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn input_rows<F: Float>(along: Along, isa: Isa, g: &Geom, xc: &[F], ty: usize, tw: usize, v: &mut [F], at: usize,
+                                   xi_stride: usize, buf: &mut Rows<F>) {
+    let (ph, pw) = (g.pad[0] as isize, g.pad[1] as isize);
+    // padded input rows: r[s] = x[iy, s − pw] for s in 0..width; along x one row of 4·tw + 4
+    // columns (the 8 of the last tile), along y 8 rows of Wo columns
+    let (first, count, width) = match along {
+        Along::X => (ty as isize - ph, 1, TILE * tw + TILE),
+        Along::Y => ((TILE * ty) as isize - ph, 8, g.wo),
+    };
+    for (r, row) in buf.patch.chunks_exact_mut(width).take(count).enumerate() {
+        // input row iy = first + r; columns s − pw for s in [pw, pw + W) ∩ [0, width)
+        let iy = first + r as isize;
+        row.fill(F::zero());
+        if iy >= 0 && (iy as usize) < g.h {
+            let src = &xc[iy as usize * g.w..(iy as usize + 1) * g.w];
+            let (s0, s1) = ((pw as usize).min(width), (pw as usize + g.w).min(width));
+            row[s0..s1].copy_from_slice(&src[..s1 - s0]);
+        }
+    }
+    input_row_isa(isa, along, width, tw, buf, v, at, xi_stride);
+}
+
+per_isa!(
+    /// [`input_row`] for the plan's ISA.
+    input_row_isa => input_row (along: Along, width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize)
+);
+
+/// The input transform of one row of tiles from its padded input rows in `buf.patch`, into
+/// `v[ξ·xi_stride + at + t]`.
+#[inline(always)]
+fn input_row<F: Float>(along: Along, width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize) {
+    let Rows { patch, phase, .. } = buf;
+    let mut out_rows = strided_rows_mut(v, at, xi_stride, tw);
+    match along {
+        Along::X => {
+            // d_j[tx] = row[4·tx + j]: phase j % 4 from tile tx + j / 4
+            split_phases(&patch[..width], tw + 1, phase);
+            let d = std::array::from_fn(|j| &phase[(j % 4) * (tw + 1) + j / 4..][..tw]);
+            map_tiles::<F, InputTransform, 8, 8>(d, &mut out_rows);
+        }
+        // d_j[ox] = patch row j
+        Along::Y => map_tiles::<F, InputTransform, 8, 8>(strided_rows(patch, 0, width, tw), &mut out_rows),
+    }
+}
+
+/// The output pixels of tile row ty: (Aᵀ m)[i] + b0 (then ReLU), m[ξ] = `m[ξ·xi_stride + at + t]`,
+/// at output row ty, columns 4·t + i (along x) or at output rows 4·ty + i, column t (along y),
+/// clipped to Ho x Wo, into the output plane `yo`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn output_rows<F: Float>(along: Along, isa: Isa, g: &Geom, m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F,
+                                    relu: bool, ty: usize, yo: &mut [F], buf: &mut Rows<F>) {
+    output_row_isa(isa, m, at, xi_stride, tw, buf);
+    let q = strided_rows::<F, 4>(&buf.ex, 0, tw, tw);
+    let out = |o: F| {
+        let o = o + b0;
+        if relu { o.max(F::zero()) } else { o }
+    };
+    match along {
+        Along::X => {
+            // y[ty, 4·tx + i] = q[i][tx], clipped to Wo
+            let row = &mut yo[ty * g.wo..(ty + 1) * g.wo];
+            for (tx, quad) in row.chunks_mut(TILE).enumerate() {
+                for (i, slot) in quad.iter_mut().enumerate() {
+                    *slot = out(q[i][tx]);
+                }
+            }
+        }
+        Along::Y => {
+            for (i, qi) in q.iter().enumerate() {
+                // y[4·ty + i, ox] = q[i][ox], clipped to Ho
+                let oy = TILE * ty + i;
+                if oy >= g.ho {
+                    break;
+                }
+                yo[oy * g.wo..(oy + 1) * g.wo].iter_mut().zip(qi.iter()).for_each(|(y, &v)| *y = out(v));
+            }
+        }
+    }
+}
+
+per_isa!(
+    /// [`output_row`] for the plan's ISA.
+    output_row_isa => output_row (m: &[F], at: usize, xi_stride: usize, tw: usize, buf: &mut Rows<F>)
+);
+
+/// The output transform of one row of tiles: q[i][t] = (Aᵀ m)[i], m[ξ] = `m[ξ·xi_stride + at + t]`,
+/// into `buf.ex` (4 rows of tw).
+#[inline(always)]
+fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, buf: &mut Rows<F>) {
+    let mut q = strided_rows_mut(&mut buf.ex, 0, tw, tw);
+    map_tiles::<F, OutputTransform, 8, 4>(strided_rows(m, at, xi_stride, tw), &mut q);
+}
+
+/// `dM[ξ]` rows of tile row ty: `dm[ξ·xi_stride + at + t]` = (A y)[ξ], y the 4 dY values of tile t
+/// (along x: `dY[ty, 4·t ..]`; along y: `dY[4·ty .., t]`; 0 outside Ho x Wo) of the plane `dyo`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn grad_output_rows<F: Float>(along: Along, isa: Isa, g: &Geom, dyo: &[F], ty: usize, tw: usize, dm: &mut [F],
+                                         at: usize, xi_stride: usize, buf: &mut Rows<F>) {
+    // dY rows: along x the one row ty, padded to 4·tw columns; along y rows 4·ty + i, i < 4
+    let (first, count, width) = match along {
+        Along::X => (ty, 1, TILE * tw),
+        Along::Y => (TILE * ty, TILE, g.wo),
+    };
+    for (r, row) in buf.patch.chunks_exact_mut(width).take(count).enumerate() {
+        let oy = first + r;
+        row.fill(F::zero());
+        if oy < g.ho {
+            row[..g.wo].copy_from_slice(&dyo[oy * g.wo..(oy + 1) * g.wo]);
+        }
+    }
+    grad_output_row_isa(isa, along, width, tw, buf, dm, at, xi_stride);
+}
+
+per_isa!(
+    /// [`grad_output_row`] for the plan's ISA.
+    grad_output_row_isa => grad_output_row (along: Along, width: usize, tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize,
+                                            xi_stride: usize)
+);
+
+/// The adjoint output transform of one row of tiles from its dY rows in `buf.patch`, into
+/// `dm[ξ·xi_stride + at + t]`.
+#[inline(always)]
+fn grad_output_row<F: Float>(along: Along, width: usize, tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize,
+                             xi_stride: usize) {
+    let Rows { patch, phase, .. } = buf;
+    let mut out_rows = strided_rows_mut(dm, at, xi_stride, tw);
+    match along {
+        Along::X => {
+            // y_i[tx] = row[4·tx + i]
+            split_phases(&patch[..width], tw, phase);
+            map_tiles::<F, GradOutputTransform, 4, 8>(strided_rows(phase, 0, tw, tw), &mut out_rows);
+        }
+        // y_i[ox] = dY row 4·ty + i
+        Along::Y => map_tiles::<F, GradOutputTransform, 4, 8>(strided_rows(patch, 0, width, tw), &mut out_rows),
+    }
+}

@@ -1,0 +1,169 @@
+//! What the Winograd transforms are built from: 1-D transforms written once for one value and for
+//! [`Lanes`] of values (one per tile), run over whole rows of tiles by [`map_tiles`], and compiled
+//! per ISA by [`per_isa!`].
+
+use crate::Float;
+use std::ops::{Add, Mul, Sub};
+
+/// What the 1-D transforms compute on: one value F, or [`Lanes`] of F (one per tile).
+pub(super) trait Lane<F>: Copy + Add<Output = Self> + Sub<Output = Self> + Mul<F, Output = Self> {}
+impl<F: Float> Lane<F> for F {}
+impl<F: Float> Lane<F> for Lanes<F> {}
+
+/// Tiles per block of the row transforms: one 512-bit register of f32.
+const LANES: usize = 16;
+
+/// One value per tile for LANES tiles. Its operations are fixed-length loops, which the compiler
+/// turns into vector instructions; each lane computes exactly what the scalar path computes.
+#[derive(Clone, Copy)]
+pub(super) struct Lanes<F>([F; LANES]);
+
+/// `impl $tr for Lanes<F>`: the lane-wise binary operation `$op`.
+macro_rules! lanes_op {
+    ($tr:ident, $method:ident, $op:tt) => {
+        impl<F: Float> $tr for Lanes<F> {
+            type Output = Self;
+            #[inline(always)]
+            fn $method(self, o: Self) -> Self {
+                let mut r = self.0;
+                for (x, &y) in r.iter_mut().zip(&o.0) {
+                    *x = *x $op y;
+                }
+                Lanes(r)
+            }
+        }
+    };
+}
+
+lanes_op!(Add, add, +);
+lanes_op!(Sub, sub, -);
+
+impl<F: Float> Mul<F> for Lanes<F> {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, k: F) -> Self {
+        let mut r = self.0;
+        for x in r.iter_mut() {
+            *x = *x * k;
+        }
+        Lanes(r)
+    }
+}
+
+/// A 1-D transform of M values into N, written once for one value and for [`Lanes`].
+pub(super) trait Transform1d<const M: usize, const N: usize> {
+    fn apply<F: Float, T: Lane<F>>(d: [T; M]) -> [T; N];
+}
+
+/// dst[k][tx] = X(src[0][tx], .., src[M − 1][tx])[k] for every tile tx of the rows: blocks of LANES
+/// tiles on [`Lanes`], the rest one tile at a time (the same operations on F).
+#[inline(always)]
+pub(super) fn map_tiles<F: Float, X: Transform1d<M, N>, const M: usize, const N: usize>(src: [&[F]; M],
+                                                                                       dst: &mut [&mut [F]; N]) {
+    let tw = dst[0].len();
+    let full = tw / LANES * LANES;
+    for t0 in (0..full).step_by(LANES) {
+        // tiles t0 .. t0 + LANES of every row
+        let mut d = [Lanes([F::zero(); LANES]); M];
+        for (dj, sj) in d.iter_mut().zip(&src) {
+            dj.0.copy_from_slice(&sj[t0..t0 + LANES]);
+        }
+        let out = X::apply::<F, Lanes<F>>(d);
+        for (row, o) in dst.iter_mut().zip(&out) {
+            row[t0..t0 + LANES].copy_from_slice(&o.0);
+        }
+    }
+    for tx in full..tw {
+        let out = X::apply::<F, F>(std::array::from_fn(|j| src[j][tx]));
+        for (row, &o) in dst.iter_mut().zip(&out) {
+            row[tx] = o;
+        }
+    }
+}
+
+/// N disjoint rows of `len` elements of `buf`, row r at `first + r·stride` (stride >= len): the
+/// destinations of a 1-D transform, as exact-length slices so the loops over them vectorise
+/// (indexing `buf` at `first + r·stride + tx` kept a bounds check per element, which left the
+/// transforms scalar).
+#[inline(always)]
+pub(super) fn strided_rows_mut<F, const N: usize>(buf: &mut [F], first: usize, stride: usize, len: usize) -> [&mut [F]; N] {
+    assert!(stride >= len, "strided_rows_mut: rows overlap");
+    let mut rest = &mut buf[first..];
+    std::array::from_fn(|r| {
+        // row r spans first + r·stride .. + len; the next one starts stride after it
+        let (row, tail) = std::mem::take(&mut rest).split_at_mut(len);
+        rest = if r + 1 < N { &mut tail[stride - len..] } else { tail };
+        row
+    })
+}
+
+/// N rows of `len` elements of `buf`, row r at `first + r·stride`, as exact-length slices.
+#[inline(always)]
+pub(super) fn strided_rows<F, const N: usize>(buf: &[F], first: usize, stride: usize, len: usize) -> [&[F]; N] {
+    std::array::from_fn(|r| &buf[first + r * stride..first + r * stride + len])
+}
+
+/// Per-thread buffers of the transforms of one tile row (a few KiB, reused across calls), sized
+/// for every scheme: a row of `tw` tiles is at most 4·tw + 4 input columns wide (and a column
+/// scheme's row, tw = Wo, at most tw + 4).
+pub(super) struct Rows<F> {
+    /// Input or output rows of the tiles, zero-padded: 6 x (4·tw + 6).
+    pub patch: Vec<F>,
+    /// Phases of a padded row: `phase[m][tx]` = row[4·tx + m], m < 4, tx <= tw.
+    pub phase: Vec<F>,
+    /// A transform along x, per patch row or per output row: 36 x tw.
+    pub ex: Vec<F>,
+}
+
+impl<F: Float> Rows<F> {
+    pub fn new(tw: usize) -> Self {
+        Rows { patch: vec![F::zero(); 6 * (4 * tw + 6)], phase: vec![F::zero(); 4 * (tw + 1)], ex: vec![F::zero(); 36 * tw] }
+    }
+}
+
+/// Splits the first 4·n values of a row into its 4 phases: `phase[m·n + tx]` = row[4·tx + m] for tx < n.
+#[inline(always)]
+pub(super) fn split_phases<F: Float>(row: &[F], n: usize, phase: &mut [F]) {
+    let (p0, rest) = phase.split_at_mut(n);
+    let (p1, rest) = rest.split_at_mut(n);
+    let (p2, p3) = rest.split_at_mut(n);
+    for (tx, q) in row.chunks_exact(4).take(n).enumerate() {
+        (p0[tx], p1[tx], p2[tx], p3[tx]) = (q[0], q[1], q[2], q[3]);
+    }
+}
+
+/// Defines `fn $name<F: Float>(isa: Isa, args..)`: `$body(args..)` compiled for the plan's ISA
+/// (AVX-512, AVX2 + FMA, or portable), so that its loops over the tiles of a row are vectorised
+/// with that ISA's registers.
+macro_rules! per_isa {
+    ($(#[$doc:meta])* $name:ident => $body:ident ($($arg:ident: $ty:ty),*)) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        pub(super) fn $name<F: Float>(isa: Isa, $($arg: $ty),*) {
+            /// The body compiled with AVX-512. Safety: the CPU has AVX-512F.
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx512f")]
+            #[allow(clippy::too_many_arguments)]
+            unsafe fn avx512<F: Float>($($arg: $ty),*) {
+                $body($($arg),*)
+            }
+            /// The body compiled with AVX2 and FMA. Safety: the CPU has both.
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,fma")]
+            #[allow(clippy::too_many_arguments)]
+            unsafe fn avx2<F: Float>($($arg: $ty),*) {
+                $body($($arg),*)
+            }
+            match isa {
+                // SAFETY: the plan's ISA is supported by this CPU.
+                #[cfg(target_arch = "x86_64")]
+                Isa::Avx512 => unsafe { avx512($($arg),*) },
+                // SAFETY: as above.
+                #[cfg(target_arch = "x86_64")]
+                Isa::Avx2 => unsafe { avx2($($arg),*) },
+                _ => $body($($arg),*),
+            }
+        }
+    };
+}
+pub(super) use per_isa;
