@@ -435,17 +435,20 @@ const WINOGRAD_CASES: &[Case] = &[
 
 #[test]
 fn conv2d_winograd_f64_matches_direct_sum() {
-    // in f64 the transforms are exact up to rounding: the algorithm itself is checked
+    // in f64 the transforms are exact up to rounding: the algorithm itself is checked, on every
+    // ISA path (the row transforms are compiled once per ISA)
     let mut rng = Rng::new(60);
-    let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::selected(), winograd: Winograd::On };
-    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES {
-        let cfg = Conv2dCfg::new(stride, padding);
-        let (x, w, b) = inputs(&mut rng, &xs, &ws);
-        for relu in [false, true] {
-            let y = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, relu, run).unwrap().into_dyn();
-            let want = conv_ref(&x, &w, Some(&b), &cfg).mapv(|v| if relu { v.max(0.0) } else { v });
-            let err = max_abs_diff(&y, &want);
-            assert!(err < 1e-11, "{name} relu={relu}: max abs err {err}");
+    for isa in Isa::ALL.into_iter().filter(|i| i.supported()) {
+        let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::for_isa(isa).unwrap(), winograd: Winograd::On };
+        for &(name, xs, ws, stride, padding) in WINOGRAD_CASES {
+            let cfg = Conv2dCfg::new(stride, padding);
+            let (x, w, b) = inputs(&mut rng, &xs, &ws);
+            for relu in [false, true] {
+                let y = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, relu, run).unwrap().into_dyn();
+                let want = conv_ref(&x, &w, Some(&b), &cfg).mapv(|v| if relu { v.max(0.0) } else { v });
+                let err = max_abs_diff(&y, &want);
+                assert!(err < 1e-11, "{} {name} relu={relu}: max abs err {err}", isa.name());
+            }
         }
     }
     // dX of a stride-1 3x3 conv is a Winograd forward too, and dW is Winograd's adjoint
@@ -469,11 +472,12 @@ fn gradcheck_winograd(name: &str, xs: [usize; 4], ws: [usize; 4], cfg: Conv2dCfg
     gradcheck(&format!("{name} dw"), &w, &grads.w.unwrap().into_dyn(), loss_w);
 }
 
-/// dW of a case by the direct path and by Winograd (forced), in the element type of the inputs.
-fn weight_grads<F: _core::Float>(x: &ArrayD<F>, w: &ArrayD<F>, g: &ArrayD<F>, cfg: &Conv2dCfg) -> [ArrayD<F>; 2] {
+/// dW of a case by the direct path and by Winograd (forced) on one ISA path, in the element type of
+/// the inputs.
+fn weight_grads<F: _core::Float>(isa: Isa, x: &ArrayD<F>, w: &ArrayD<F>, g: &ArrayD<F>, cfg: &Conv2dCfg) -> [ArrayD<F>; 2] {
     let need = Conv2dNeed { x: false, w: true, b: false };
     [Winograd::Off, Winograd::On].map(|winograd| {
-        let run = Conv2dRun { plan: _core::gemm::Plan::<F>::selected(), winograd };
+        let run = Conv2dRun { plan: _core::gemm::Plan::<F>::for_isa(isa).unwrap(), winograd };
         conv2d_bwd_ex(x.view(), w.view(), g.view(), cfg, need, run).unwrap().w.unwrap().into_dyn()
     })
 }
@@ -487,15 +491,17 @@ fn conv2d_winograd_weight_grad_matches_direct_in_f64() {
         ("3x3_p1_64ch_batch8", [8, 64, 29, 35], [24, 64, 3, 3], [1, 1], [1, 1]),
         ("1x5_p0x2_64ch_batch8", [8, 64, 64, 35], [24, 64, 1, 5], [1, 1], [0, 2]),
     ];
-    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES.iter().chain(&chunked) {
-        let cfg = Conv2dCfg::new(stride, padding);
-        let (x, w, _) = inputs(&mut rng, &xs, &ws);
-        let (ho, wo) = cfg.out_hw(xs[2], xs[3], ws[2], ws[3]).unwrap();
-        let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0);
-        let [direct, winograd] = weight_grads(&x, &w, &g, &cfg);
-        let scale = direct.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let err = max_abs_diff(&winograd, &direct) / scale;
-        assert!(err < 1e-12, "{name}: winograd dW relative error {err:.2e}");
+    for isa in Isa::ALL.into_iter().filter(|i| i.supported()) {
+        for &(name, xs, ws, stride, padding) in WINOGRAD_CASES.iter().chain(&chunked) {
+            let cfg = Conv2dCfg::new(stride, padding);
+            let (x, w, _) = inputs(&mut rng, &xs, &ws);
+            let (ho, wo) = cfg.out_hw(xs[2], xs[3], ws[2], ws[3]).unwrap();
+            let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0);
+            let [direct, winograd] = weight_grads(isa, &x, &w, &g, &cfg);
+            let scale = direct.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let err = max_abs_diff(&winograd, &direct) / scale;
+            assert!(err < 1e-12, "{} {name}: winograd dW relative error {err:.2e}", isa.name());
+        }
     }
 }
 
@@ -508,9 +514,10 @@ fn conv2d_winograd_weight_grad_f32_error_against_f64_is_small() {
         let (x, w, _) = inputs(&mut rng, &xs, &ws);
         let (ho, wo) = cfg.out_hw(xs[2], xs[3], ws[2], ws[3]).unwrap();
         let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0);
-        let [want, _] = weight_grads(&x, &w, &g, &cfg);
+        let isa = Isa::selected();
+        let [want, _] = weight_grads(isa, &x, &w, &g, &cfg);
         let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let [direct, winograd] = weight_grads(&x.mapv(|v| v as f32), &w.mapv(|v| v as f32), &g.mapv(|v| v as f32), &cfg);
+        let [direct, winograd] = weight_grads(isa, &x.mapv(|v| v as f32), &w.mapv(|v| v as f32), &g.mapv(|v| v as f32), &cfg);
         let errs = [direct, winograd].map(|d| max_abs_diff(&d.mapv(f64::from), &want) / scale);
         eprintln!("{name}: dW max error / max |dW|: direct {:.1e}, winograd {:.1e}", errs[0], errs[1]);
         assert!(errs[1] < 2e-5, "{name}: winograd dW relative error {:.2e}", errs[1]);
