@@ -35,7 +35,8 @@ fn run<F: crate::Float>(winograd: bool) -> conv::Conv2dRun<'static, F> {
 ///     stride: (sh, sw), each >= 1.
 ///     padding: (ph, pw), each >= 0.
 ///     relu: apply ReLU to the output.
-///     winograd: let stride-1 3x3 float32 convolutions use Winograd F(4x4, 3x3) (False: direct).
+///     winograd: let stride-1 float32 convolutions with 3x3, 1x5 or 5x1 kernels use Winograd
+///         F(4x4, 3x3) / F(4, 5) (False: direct).
 /// Returns:
 ///     y, (N, Cout, Ho, Wo).
 #[pyfunction]
@@ -64,7 +65,8 @@ fn conv2d_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, P
 ///     need_x: compute dx.
 ///     need_w: compute dweight.
 ///     need_b: compute dbias.
-///     winograd: let dx of a stride-1 3x3 float32 convolution use Winograd (False: direct).
+///     winograd: let dx and dweight of a stride-1 float32 convolution with a 3x3, 1x5 or 5x1 kernel
+///         use Winograd where it pays (False: direct).
 /// Returns:
 ///     (dx or None, dweight or None, dbias or None).
 #[pyfunction]
