@@ -40,10 +40,8 @@ const MIN_TILES: usize = 512;
 enum Scheme {
     /// F(4x4, 3x3): a 3x3 kernel, padding at most 2 per axis.
     F4x4K3x3,
-    /// F(4, 5) along rows: a 1x5 kernel, padding at most 4 per axis.
-    F4K1x5,
-    /// F(4, 5) along columns: a 5x1 kernel, padding at most 4 per axis.
-    F4K5x1,
+    /// F(4, 5) along rows (a 1x5 kernel) or along columns (a 5x1 kernel), padding at most 4 per axis.
+    F4K5(Along),
 }
 
 impl Scheme {
@@ -53,8 +51,8 @@ impl Scheme {
         match (g.kh, g.kw) {
             _ if g.stride != [1, 1] => None,
             (3, 3) if pad_at_most(2) => Some(Scheme::F4x4K3x3),
-            (1, 5) if pad_at_most(4) => Some(Scheme::F4K1x5),
-            (5, 1) if pad_at_most(4) => Some(Scheme::F4K5x1),
+            (1, 5) if pad_at_most(4) => Some(Scheme::F4K5(Along::X)),
+            (5, 1) if pad_at_most(4) => Some(Scheme::F4K5(Along::Y)),
             _ => None,
         }
     }
@@ -63,7 +61,7 @@ impl Scheme {
     fn xi(self) -> usize {
         match self {
             Scheme::F4x4K3x3 => 36,
-            Scheme::F4K1x5 | Scheme::F4K5x1 => 8,
+            Scheme::F4K5(_) => 8,
         }
     }
 
@@ -71,8 +69,8 @@ impl Scheme {
     fn tiles(self, g: &Geom) -> (usize, usize) {
         match self {
             Scheme::F4x4K3x3 => (g.ho.div_ceil(4), g.wo.div_ceil(4)),
-            Scheme::F4K1x5 => (g.ho, g.wo.div_ceil(4)),
-            Scheme::F4K5x1 => (g.ho.div_ceil(4), g.wo),
+            Scheme::F4K5(Along::X) => (g.ho, g.wo.div_ceil(4)),
+            Scheme::F4K5(Along::Y) => (g.ho.div_ceil(4), g.wo),
         }
     }
 
@@ -80,7 +78,7 @@ impl Scheme {
     fn weight<F: Float>(self, w: &[F], u: &mut [F]) {
         match self {
             Scheme::F4x4K3x3 => f4x4_3x3::weight(w, u),
-            Scheme::F4K1x5 | Scheme::F4K5x1 => f4_5::weight(w, u),
+            Scheme::F4K5(_) => f4_5::weight(w, u),
         }
     }
 
@@ -88,7 +86,7 @@ impl Scheme {
     fn weight_grad<F: Float>(self, du: impl Fn(usize) -> F, dw: &mut [F]) {
         match self {
             Scheme::F4x4K3x3 => f4x4_3x3::weight_grad(du, dw),
-            Scheme::F4K1x5 | Scheme::F4K5x1 => f4_5::weight_grad(du, dw),
+            Scheme::F4K5(_) => f4_5::weight_grad(du, dw),
         }
     }
 
@@ -98,8 +96,7 @@ impl Scheme {
                             xi_stride: usize, buf: &mut Rows<F>) {
         match self {
             Scheme::F4x4K3x3 => f4x4_3x3::input_rows(plan.isa, g, xc, ty, tw, v, at, xi_stride, buf),
-            Scheme::F4K1x5 => f4_5::input_rows(Along::X, plan.isa, g, xc, ty, tw, v, at, xi_stride, buf),
-            Scheme::F4K5x1 => f4_5::input_rows(Along::Y, plan.isa, g, xc, ty, tw, v, at, xi_stride, buf),
+            Scheme::F4K5(along) => f4_5::input_rows(along, plan.isa, g, xc, ty, tw, v, at, xi_stride, buf),
         }
     }
 
@@ -110,8 +107,7 @@ impl Scheme {
                              relu: bool, ty: usize, yo: &mut [F], buf: &mut Rows<F>) {
         match self {
             Scheme::F4x4K3x3 => f4x4_3x3::output_rows(plan.isa, g, m, at, xi_stride, tw, b0, relu, ty, yo, buf),
-            Scheme::F4K1x5 => f4_5::output_rows(Along::X, plan.isa, g, m, at, xi_stride, tw, b0, relu, ty, yo, buf),
-            Scheme::F4K5x1 => f4_5::output_rows(Along::Y, plan.isa, g, m, at, xi_stride, tw, b0, relu, ty, yo, buf),
+            Scheme::F4K5(along) => f4_5::output_rows(along, plan.isa, g, m, at, xi_stride, tw, b0, relu, ty, yo, buf),
         }
     }
 
@@ -121,8 +117,7 @@ impl Scheme {
                                   xi_stride: usize, buf: &mut Rows<F>) {
         match self {
             Scheme::F4x4K3x3 => f4x4_3x3::grad_output_rows(plan.isa, g, dyo, ty, tw, dm, at, xi_stride, buf),
-            Scheme::F4K1x5 => f4_5::grad_output_rows(Along::X, plan.isa, g, dyo, ty, tw, dm, at, xi_stride, buf),
-            Scheme::F4K5x1 => f4_5::grad_output_rows(Along::Y, plan.isa, g, dyo, ty, tw, dm, at, xi_stride, buf),
+            Scheme::F4K5(along) => f4_5::grad_output_rows(along, plan.isa, g, dyo, ty, tw, dm, at, xi_stride, buf),
         }
     }
 
