@@ -3,8 +3,10 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
-#   scripts/campaign.sh cycle [STEPS] # one session's cycle: a new one-cycle run of STEPS (default 1000)
-#                                     # from the shipped weights, in its own run folder train/cycle-DATE
+#   scripts/campaign.sh cycle [STEPS] [s1|s2]
+#                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
+#                                     # with stage 1's (default) or stage 2's crops, from the shipped
+#                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
 #
@@ -26,16 +28,32 @@ stage_args() {
     s1-128x256) echo "--preset cpu --steps 20000 --crop 128 256 --batch-size 4 --iters 3 3 --lr 4e-4${RESTART_INIT:+ --init $RESTART_INIT}" ;;
     # 2: larger crops, a wider disparity range, inference-like iterations, from stage 1's best weights
     s2-192x384) echo "--preset cpu --steps 10000 --crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --init $ROOT/train/s1-128x256/best.safetensors" ;;
-    # a session's cycle: stage 1's settings, a short one-cycle from the shipped weights that anneals to
-    # zero within one session, so a session ends on annealed weights even if its machine is not kept
-    cycle-*) echo "--preset cpu --steps ${CYCLE_STEPS:-1000} --crop 128 256 --batch-size 4 --iters 3 3 --lr 3e-4 --init $RESTART_INIT" ;;
+    # a session's cycle: a short one-cycle from the shipped weights that anneals to zero within one
+    # session, so a session ends on annealed weights even if its machine is not kept; its data seed is
+    # its start time, so each cycle draws pairs no earlier cycle saw
+    cycle-*) echo "--preset cpu --steps ${CYCLE_STEPS:-1000} $(cycle_args "${CYCLE_KIND:-s1}") --init $RESTART_INIT --seed $(( 10#${1//[!0-9]/} % 2147483647 ))" ;;
     *) echo "unknown stage $1" >&2; exit 2 ;;
+  esac
+}
+
+# a cycle's crops, iterations and data: stage 1's, or stage 2's larger crops with inference-like
+# iterations and more water (the under-water sets lose most at large images: docs/training.md)
+cycle_args() {
+  case "$1" in
+    s1) echo "--crop 128 256 --batch-size 4 --iters 3 3 --lr 3e-4" ;;
+    s2) echo "--crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --data scenes:0.45 scenes-underwater:0.35 synthetic:0.1 synthetic-underwater:0.1" ;;
+    *) echo "unknown cycle kind $1 (s1 or s2)" >&2; exit 2 ;;
   esac
 }
 
 case "${1:-}" in
   start|cycle)
-    if [ "$1" = cycle ]; then stage=cycle-$(date -u +%Y%m%d-%H%M) CYCLE_STEPS=${2:-1000}; else stage=${2:?stage name}; fi
+    if [ "$1" = cycle ]; then
+      stage=cycle-$(date -u +%Y%m%d-%H%M) CYCLE_STEPS=${2:-1000} CYCLE_KIND=${3:-s1}
+      cycle_args "$CYCLE_KIND" >/dev/null
+    else
+      stage=${2:?stage name}
+    fi
     run=$ROOT/train/$stage
     mkdir -p "$ROOT/train" "$ENGINE"
     if pgrep -f "mipnet train" >/dev/null; then echo "a run is going: scripts/campaign.sh stop first" >&2; exit 1; fi
@@ -45,7 +63,7 @@ case "${1:-}" in
       args="--resume $run"
     else
       if { [ "$stage" = s1-128x256 ] || [ "${stage#cycle-}" != "$stage" ]; } && [ -f "$SHIPPED" ]; then
-        mkdir -p "$run" && cp "$SHIPPED" "$run/restart-init.safetensors" && RESTART_INIT=$run/restart-init.safetensors
+        mkdir -p "$run" && cp "${INIT:-$SHIPPED}" "$run/restart-init.safetensors" && RESTART_INIT=$run/restart-init.safetensors
       fi
       args="$(stage_args "$stage") --out $run"
     fi

@@ -19,8 +19,12 @@ from ..errors import ArgumentError
 from .datasets import Dataset
 
 EVAL_SEED_START = 1_000_000  # training pairs use seeds below it, evaluation pairs from it on
+# training-time validation (checkpoint choice) draws from here, away from the evaluation pairs of
+# `mipnet eval` (seeds 1,000,000 on), so no choice is made on a pair that measures the result
+VALIDATION_SEED_START = 2_000_000
 
-__all__ = ["make_pair", "GeneratedStereo", "SyntheticStereo", "synthetic_underwater_pairs", "EVAL_SEED_START"]
+__all__ = ["make_pair", "GeneratedStereo", "SyntheticStereo", "synthetic_underwater_pairs", "EVAL_SEED_START",
+           "VALIDATION_SEED_START"]
 
 _TABLE_SIZE = 256  # value-noise lattice period (power of two: wrap with a bit mask)
 _OCTAVES = ((40.0, 0.45), (14.0, 0.35), (6.0, 0.20))  # (period px, amplitude) of luminance noise

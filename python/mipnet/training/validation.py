@@ -10,7 +10,8 @@ from typing import Callable
 import numpy as np
 
 from ..evaluation import evaluate_method, sgbm_rows
-from .data_spec import EVAL_SEED_START, open_spec, parse_spec
+from ..data.synthetic import VALIDATION_SEED_START
+from .data_spec import open_spec, parse_spec
 
 METRICS = ("epe", "bad1", "bad2", "bad3")
 
@@ -22,14 +23,14 @@ def validation_sets(size: tuple[int, int], pairs: int, extra: str | None = None)
 
     h, w = size
     sets = {
-        "air": data.SyntheticStereo(pairs, h, w, seed=EVAL_SEED_START),
-        "turbid": data.SyntheticStereo(pairs, h, w, seed=EVAL_SEED_START, underwater="turbid"),
-        "low_light": data.SyntheticStereo(pairs, h, w, seed=EVAL_SEED_START, underwater="low_light"),
-        "scenes": data.SceneStereo(pairs, h, w, seed=EVAL_SEED_START),
+        "air": data.SyntheticStereo(pairs, h, w, seed=VALIDATION_SEED_START),
+        "turbid": data.SyntheticStereo(pairs, h, w, seed=VALIDATION_SEED_START, underwater="turbid"),
+        "low_light": data.SyntheticStereo(pairs, h, w, seed=VALIDATION_SEED_START, underwater="low_light"),
+        "scenes": data.SceneStereo(pairs, h, w, seed=VALIDATION_SEED_START),
     }
     if extra:
         spec = parse_spec(extra)
-        ds = open_spec(spec, size, EVAL_SEED_START, pairs)
+        ds = open_spec(spec, size, VALIDATION_SEED_START, pairs)
         sets[spec.name] = [ds[i] for i in range(min(pairs, len(ds)))]
     return sets
 
