@@ -130,7 +130,7 @@ class IPMotionEncoder(Module):
         self.out = Conv2d(128, 94, 3, padding=1)
 
     def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
-        ab = ops.cat_relu([self.corr1(corr), self.flow2(ops.relu(self.flow1(flow)))], [True, True], 1)
+        ab = ops.cat_relu([self.corr1(corr), self.flow2(self.flow1.forward_relu(flow))], [True, True], 1)
         return self.out(ab)
 
 
@@ -147,8 +147,8 @@ class RLSMotionEncoder(Module):
         self.out = Conv2d(192, 126, 3, padding=1)
 
     def forward(self, flow: Tensor, corr: Tensor) -> Tensor:
-        a = self.corr2(ops.relu(self.corr1(corr)))
-        b = self.flow2(ops.relu(self.flow1(flow)))
+        a = self.corr2(self.corr1.forward_relu(corr))
+        b = self.flow2(self.flow1.forward_relu(flow))
         return self.out(ops.cat_relu([a, b], [True, True], 1))
 
 
@@ -223,7 +223,7 @@ class DispHead(Module):
         self.conv2 = Conv2d(mid, 2, 3, padding=1)
 
     def forward(self, h: Tensor) -> Tensor:
-        return self.conv2(ops.relu(self.conv1(h)))
+        return self.conv2(self.conv1.forward_relu(h))
 
 
 class MaskHead(Module):
@@ -235,7 +235,7 @@ class MaskHead(Module):
         self.conv2 = Conv2d(256, 144, 1)
 
     def forward(self, h: Tensor) -> Tensor:
-        return self.conv2(ops.relu(self.conv1(h))) * 0.25
+        return self.conv2(self.conv1.forward_relu(h)) * 0.25
 
 
 class UpdateBlock(Module):

@@ -25,6 +25,10 @@ class Conv2d(Module):
     def forward(self, x: Tensor) -> Tensor:
         return ops.conv2d(x, self.weight, self.bias, self.stride, self.padding)
 
+    def forward_relu(self, x: Tensor) -> Tensor:
+        """ReLU(self(x)) as one op: the ReLU runs in the convolution's epilogue, with no extra pass."""
+        return ops.conv2d_relu(x, self.weight, self.bias, self.stride, self.padding)
+
     def extra_repr(self) -> str:
         return f"{self.in_channels}, {self.out_channels}, kernel_size={self.kernel_size}, stride={self.stride}, padding={self.padding}"
 
