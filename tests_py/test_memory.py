@@ -44,8 +44,12 @@ def _graph_saved_bytes(model, n, h, w, iters) -> int:
 
 @pytest.mark.parametrize("config", [{}, {"use_aff": False}, {"use_ip": False}, {"use_rls": False}, {"rx": 2, "ry": 0}],
                          ids=["full", "no-aff", "no-ip", "no-rls", "rx2-ry0"])
-def test_the_training_count_is_what_the_graph_saves(config):
-    """activation_terms' training terms (all but the backward working set) against the graph."""
+@pytest.mark.parametrize("heads", ["kept", "recomputed"])
+def test_the_training_count_is_what_the_graph_saves(config, heads, monkeypatch):
+    """activation_terms' training terms (all but the backward working set) against the graph, with the
+    prediction heads kept (this size) and recomputed (as at large sizes)."""
+    if heads == "recomputed":
+        monkeypatch.setattr(memory, "HEAD_KEEP_BYTES", 0)
     n, h, w, iters = 2, 64, 80, (2, 3)
     mipnet.manual_seed(0)
     model = mipnet.MIPNet(**config)

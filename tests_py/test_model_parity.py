@@ -101,7 +101,12 @@ def _zero_grad_bias(name):
     return feeds_batch_norm or feeds_instance_norm
 
 
-def test_training_step_matches_reference_float64():
+@pytest.mark.parametrize("heads", ["kept", "recomputed"])
+def test_training_step_matches_reference_float64(heads, monkeypatch):
+    """Both ways training treats the prediction heads (mipnet.memory.recompute_heads): kept at this
+    size, and recomputed in the backward as at large sizes."""
+    if heads == "recomputed":
+        monkeypatch.setattr(mipnet.memory, "HEAD_KEEP_BYTES", 0)
     ref, ours, t_preds, m_preds, t_loss, m_loss = _train_step_both(np.float64, freeze_bn=False)
     assert len(m_preds) == len(t_preds) == 24
     worst_pred = max(np.abs(a.numpy() - b.detach().numpy()).max() for a, b in zip(m_preds, t_preds))

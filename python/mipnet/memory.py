@@ -24,7 +24,7 @@ import numpy as np
 from .errors import ArgumentError, MemoryLimitError
 
 __all__ = ["MemoryEstimate", "estimate", "activation_bytes", "activation_terms", "available_memory", "check",
-           "check_forward", "format_bytes", "measure_peak"]
+           "check_forward", "format_bytes", "measure_peak", "recompute_heads"]
 
 MiB = 2**20
 #: Resident memory of a fresh process after ``import mipnet`` (interpreter, numpy, Pillow, the Rust
@@ -39,6 +39,18 @@ MMAP_THRESHOLD_MAX = 32 * MiB
 #: 1/4-level stage allocates its own; 1.2 when they are mapped: kernel temporaries only).
 EVAL_HEAP_FACTOR, EVAL_MMAP_FACTOR = 1.8, 1.25
 DIVISOR = 16  # the model pads H and W to multiples of 16
+#: Maps per image a training prediction's mask head and upsampling keep for backward at their level:
+#: conv1's ReLU output (256) and the mask (144).
+HEAD_CHANNELS = 400
+#: Training keeps a level's prediction heads while all of them take at most this; above it they are
+#: recomputed in the backward (which costs about 5% of a step at 128x256 batch 4).
+HEAD_KEEP_BYTES = 256 * MiB
+
+
+def recompute_heads(level_pixels: int, sub_updates: int, itemsize: int = 4) -> bool:
+    """Whether training recomputes a level's prediction heads in the backward instead of keeping them:
+    ``level_pixels`` = N * h * w of the level (the whole batch), ``sub_updates`` = predictions there."""
+    return HEAD_CHANNELS * level_pixels * sub_updates * itemsize > HEAD_KEEP_BYTES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,7 +94,7 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     padded input (H, W multiples of 16): 1 (full resolution), 2, 4 (features, 1/4 updates) and 16.
     Eval: ``live`` (the largest set of tensors alive at once) and ``allocator`` (what the heap keeps
     and kernels add on top). Training: what the forward saves for backward (``encoder``, ``levels``,
-    ``updates``, ``loss``) and the ``backward`` working set.
+    ``updates``, ``heads`` (see :func:`recompute_heads`), ``loss``) and the ``backward`` working set.
 
     Parameters
     ----------
@@ -163,6 +175,10 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     rls_call = warp_rls + (corr_rls + 2 + 128 + 192) + 2 * (2 * 384 + 256 + 128) + (128 + 256) + 2
     per_iter = (ip_call if cfg.use_ip else 0) + (rls_call if cfg.use_rls else 0)
     updates = level(per_iter * n16, 16) + level(per_iter * n4, 4)
+    # the prediction heads' own activations, where they are kept rather than recomputed
+    subs = cfg.use_ip + cfg.use_rls
+    heads = sum(level(HEAD_CHANNELS * subs * n, s) for s, n in ((16, n16), (4, n4))
+                if not recompute_heads(px[s] * batch, subs * n, itemsize))
     # the loss keeps each full-resolution prediction (1 channel) and the target and mask (~1.25)
     predictions = n16 * (cfg.use_ip + cfg.use_rls) + n4 * (cfg.use_ip + cfg.use_rls)
     loss = level(predictions + 1.25, 1)
@@ -171,7 +187,8 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     backward = level(shared + 256 + max(ip_call if cfg.use_ip else 0, rls_call if cfg.use_rls else 0), 4)
     # one stack of convz and convr weights per GRU pass, kept by its convolutions (shared by all calls)
     stacked = itemsize * 256 * (((352 * 9 + 1) if cfg.use_ip else 0) + (2 * (384 * 5 + 1) if cfg.use_rls else 0))
-    return {"encoder": encoder, "levels": levels, "updates": updates, "loss": loss, "stacked": stacked, "backward": backward}
+    return {"encoder": encoder, "levels": levels, "updates": updates, "heads": heads, "loss": loss, "stacked": stacked,
+            "backward": backward}
 
 
 def model_bytes(model: Any = None, itemsize: int = 4) -> int:

@@ -18,7 +18,7 @@ from .autograd import checkpoint, is_grad_enabled, no_grad
 from .profiler import scope
 from .blocks import Encoder, UpdateBlock, ip_update_block, rls_update_block
 from .errors import ArgumentError, ShapeError
-from .memory import check_forward
+from .memory import check_forward, recompute_heads
 from .nn import BatchNorm2d, Module
 from .random import default_generator
 from .tensor import Tensor
@@ -160,9 +160,10 @@ class MIPNet(Module):
         operands = _CorrelationOperands(fl, fr, self.config)
         blocks = self._blocks()
         every = preds is not None and bilinear is not None
-        # training: each prediction's mask head and upsampling are recomputed in the backward rather
-        # than kept (about 400 maps of the level per sub-update)
-        recompute = every and is_grad_enabled()
+        # training at large sizes: each prediction's mask head and upsampling are recomputed in the
+        # backward rather than kept (memory.HEAD_CHANNELS maps of the level per sub-update)
+        recompute = every and is_grad_enabled() and recompute_heads(
+            fl.shape[0] * fl.shape[2] * fl.shape[3], iters * len(blocks), fl.data.itemsize)
         mask = None
         for t in range(iters):
             for b, (name, block) in enumerate(blocks):
