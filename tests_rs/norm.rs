@@ -157,3 +157,33 @@ fn norm_errors_name_op_and_shapes() {
     assert!(err.contains("batch_norm") && err.contains("mean=[2, 3]"), "{err}");
     assert!(BatchNormCfg::new(true, 0.1, -1.0).unwrap_err().to_string().contains("eps"));
 }
+
+/// max |a − b| / max |b| of an f32 result against its f64 counterpart.
+fn rel_err(a: &ArrayD<f32>, b: &ArrayD<f64>) -> f64 {
+    let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    a.iter().zip(b).fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b).abs())) / scale
+}
+
+#[test]
+fn f32_statistics_over_many_blocks_match_f64() {
+    // planes of 3·4096 + 37 values around 100 (several summation blocks, a partial lane chunk, an
+    // offset that a plain f32 running sum would lose digits to): forward and backward of both norms
+    let mut rng = Rng::new(5);
+    let x = rng.array(&[3, 2, 111, 111], 99.0, 101.0);
+    let g = rng.array(&[3, 2, 111, 111], -1.0, 1.0);
+    let (x32, g32) = (x.mapv(|v| v as f32), g.mapv(|v| v as f32));
+    let inst64 = instance_norm_fwd(x.view(), None, None, EPS).unwrap();
+    let inst32 = instance_norm_fwd(x32.view(), None, None, EPS).unwrap();
+    assert!(rel_err(&inst32.y.into_dyn(), &inst64.y.into_dyn()) < 1e-4);
+    let d64 = instance_norm_bwd(x.view(), inst64.mean.view().into_dyn(), inst64.invstd.view().into_dyn(), None, g.view()).unwrap();
+    let d32 = instance_norm_bwd(x32.view(), inst32.mean.view().into_dyn(), inst32.invstd.view().into_dyn(), None, g32.view()).unwrap();
+    assert!(rel_err(&d32.x.into_dyn(), &d64.x.into_dyn()) < 1e-4);
+    assert!(rel_err(&d32.weight.into_dyn(), &d64.weight.into_dyn()) < 1e-4);
+    let bn64 = batch_norm_fwd(x.view(), None, None, None, None, &train()).unwrap();
+    let bn32 = batch_norm_fwd(x32.view(), None, None, None, None, &train()).unwrap();
+    assert!(rel_err(&bn32.y.into_dyn(), &bn64.y.into_dyn()) < 1e-4);
+    let b64 = batch_norm_bwd(x.view(), bn64.mean.view().into_dyn(), bn64.invstd.view().into_dyn(), None, g.view(), true).unwrap();
+    let b32 = batch_norm_bwd(x32.view(), bn32.mean.view().into_dyn(), bn32.invstd.view().into_dyn(), None, g32.view(), true).unwrap();
+    assert!(rel_err(&b32.x.into_dyn(), &b64.x.into_dyn()) < 1e-4);
+    assert!(rel_err(&b32.bias.into_dyn(), &b64.bias.into_dyn()) < 1e-5);
+}

@@ -14,6 +14,9 @@ use crate::tensor::{check_nonempty, check_same_shape, fixed};
 use crate::{Error, Float, Result};
 use ndarray::{Array1, Array2, Array3, Array4, ArrayView1, ArrayView3, ArrayViewD, Axis, Ix1, Ix2, Ix4, Zip};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
+
+use super::lanes::{multiversion, LANES};
 
 /// Numeric settings of `batch_norm_fwd` (torch's `training`, `momentum`, `eps`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -106,64 +109,133 @@ fn saved<'a, F: Float, D: ndarray::Dimension>(op: &'static str, name: &'static s
     fixed::<_, D>(op, name, s)
 }
 
-/// Mean and biased variance of every channel c of a (N, C, L) view over (n, l).
+/// Elements a run of lane sums adds up in F before its total moves to the f64 running sum, which
+/// bounds the growth of f32 rounding error (each lane sums BLOCK / LANES values).
+const BLOCK: usize = 4096;
+
+/// Σ_i term([run_0[i], .., run_K-1[i]]) over the runs' common length: per BLOCK, LANES running sums
+/// in F (element i to sum i mod LANES) added up in f64, blocks in order. The order is fixed, so
+/// results depend on neither the ISA nor the thread count.
+#[inline(always)]
+fn blocked_sum<F: Float, const K: usize>(runs: [&[F]; K], term: impl Fn([F; K]) -> F) -> f64 {
+    let len = runs.iter().map(|r| r.len()).min().unwrap_or(0);
+    let mut total = 0.0;
+    for start in (0..len).step_by(BLOCK) {
+        let end = (start + BLOCK).min(len);
+        let mut acc = [F::zero(); LANES];
+        let full = start + (end - start) / LANES * LANES;
+        for i in (start..full).step_by(LANES) {
+            let chunk: [&[F; LANES]; K] = std::array::from_fn(|k| runs[k][i..i + LANES].try_into().expect("LANES elements"));
+            for (l, a) in acc.iter_mut().enumerate() {
+                *a += term(std::array::from_fn(|k| chunk[k][l]));
+            }
+        }
+        for (l, i) in (full..end).enumerate() {
+            acc[l] += term(std::array::from_fn(|k| runs[k][i]));
+        }
+        total += acc.iter().map(|&a| to_f64(a)).sum::<f64>();
+    }
+    total
+}
+
+multiversion! {
+    /// out = Σ (x_i − shift) over a run (`square` false) or Σ (x_i − shift)² (`square` true).
+    fn deviation_sum<F: Float>(x: &[F], shift: F, square: bool, out: &mut f64) {
+        *out = if square {
+            blocked_sum([x], |[x]| (x - shift) * (x - shift))
+        } else {
+            blocked_sum([x], |[x]| x - shift)
+        };
+    }
+}
+
+multiversion! {
+    /// out = (Σ g_i, Σ g_i·(x_i − shift)) over a run.
+    fn gradient_sums<F: Float>(g: &[F], x: &[F], shift: F, out: &mut (f64, f64)) {
+        *out = (blocked_sum([g], |[g]| g), blocked_sum([g, x], |[g, x]| g * (x - shift)));
+    }
+}
+
+/// Row n of channel c of a standard-layout (N, C, L) view, as a slice.
+fn row<'a, F>(x: &ArrayView3<'a, F>, n: usize, c: usize) -> &'a [F] {
+    let l = x.dim().2;
+    // element (n, c, i) of a standard (N, C, L) layout sits at (n·C + c)·L + i
+    let start = (n * x.dim().1 + c) * l;
+    &x.to_slice().expect("standard layout")[start..start + l]
+}
+
+/// Mean and biased variance of every channel c of a standard-layout (N, C, L) view over (n, l).
 fn moments<F: Float>(x: ArrayView3<F>) -> (Array1<F>, Array1<F>) {
+    let (rows, m) = (x.dim().0, (x.dim().0 * x.dim().2) as f64);
     let mv: Vec<(F, F)> = (0..x.dim().1)
         .into_par_iter()
         .map(|c| {
-            let xc = x.index_axis(Axis(1), c);
-            let m = xc.len() as f64;
+            let sum = |shift: F, square: bool| {
+                (0..rows).map(|n| {
+                    let mut s = 0.0;
+                    deviation_sum(row(&x, n, c), shift, square, &mut s);
+                    s
+                }).sum::<f64>()
+            };
             // mean = Σx / M, var = Σ(x − mean)² / M (two passes)
-            let mean = xc.iter().map(|&v| to_f64(v)).sum::<f64>() / m;
-            let var = xc.iter().map(|&v| (to_f64(v) - mean).powi(2)).sum::<f64>() / m;
-            (F::c(mean), F::c(var))
+            let mean = F::c(sum(F::zero(), false) / m);
+            (mean, F::c(sum(mean, true) / m))
         })
         .collect();
     let (mean, var): (Vec<F>, Vec<F>) = mv.into_iter().unzip();
     (Array1::from_vec(mean), Array1::from_vec(var))
 }
 
-/// y[n,c,l] = (x[n,c,l] − mean[c]) · invstd[c] · w[c] + b[c] on a (N, C, L) view, parallel over (n, c) planes.
+/// A (N, C, L) array whose every lane (n, c) is written by `fill(n, c, lane)`, lanes in parallel.
+fn map_lanes<F: Float>(dim: (usize, usize, usize), fill: impl Fn(usize, usize, &mut [MaybeUninit<F>]) + Sync) -> Array3<F> {
+    let mut y = Array3::<F>::uninit(dim);
+    y.as_slice_mut().expect("fresh array").par_chunks_mut(dim.2.max(1)).enumerate().for_each(|(i, lane)| {
+        // lane i is (n, c) = (i / C, i mod C)
+        fill(i / dim.1, i % dim.1, lane)
+    });
+    // SAFETY: the chunks cover every element and `fill` writes every element of its chunk.
+    unsafe { y.assume_init() }
+}
+
+/// y[n,c,l] = (x[n,c,l] − mean[c]) · invstd[c] · w[c] + b[c] on a standard-layout (N, C, L) view, parallel over (n, c) lanes.
 fn normalize<F: Float>(x: ArrayView3<F>, mean: &Array1<F>, invstd: &Array1<F>, w: Option<&Array1<F>>, b: Option<&Array1<F>>) -> Array3<F> {
-    let mut y = Array3::<F>::zeros(x.raw_dim());
-    Zip::indexed(y.lanes_mut(Axis(2))).and(x.lanes(Axis(2))).par_for_each(|(_, c), mut yl, xl| {
+    map_lanes(x.dim(), |n, c, yl| {
         let scale = invstd[c] * w.map_or(F::one(), |w| w[c]);
         let shift = b.map_or(F::zero(), |b| b[c]);
-        Zip::from(&mut yl).and(&xl).for_each(|y, &x| *y = (x - mean[c]) * scale + shift);
-    });
-    y
+        yl.iter_mut().zip(row(&x, n, c)).for_each(|(y, &x)| { y.write((x - mean[c]) * scale + shift); });
+    })
 }
 
 /// Backward of `normalize` on a (N, C, L) view; `batch_stats` says whether mean and invstd were
 /// computed from x (so they carry gradient) or were constants.
 fn normalize_bwd<F: Float>(x: ArrayView3<F>, g: ArrayView3<F>, mean: &Array1<F>, invstd: &Array1<F>, w: Option<&Array1<F>>, batch_stats: bool) -> (Array3<F>, Array1<F>, Array1<F>) {
-    // Per channel: db = Σ g, dw = Σ g·x̂ with x̂ = (x − mean)·invstd.
+    // Per channel: db = Σ g, dw = Σ g·x̂ = invstd·Σ g·(x − mean).
     let sums: Vec<(F, F)> = (0..x.dim().1)
         .into_par_iter()
         .map(|c| {
-            let (xc, gc) = (x.index_axis(Axis(1), c), g.index_axis(Axis(1), c));
-            let (m, s) = (to_f64(mean[c]), to_f64(invstd[c]));
             let (mut db, mut dw) = (0.0f64, 0.0f64);
-            Zip::from(&xc).and(&gc).for_each(|&x, &g| {
-                db += to_f64(g);
-                dw += to_f64(g) * (to_f64(x) - m) * s;
-            });
-            (F::c(dw), F::c(db))
+            for n in 0..x.dim().0 {
+                let mut s = (0.0, 0.0);
+                gradient_sums(row(&g, n, c), row(&x, n, c), mean[c], &mut s);
+                db += s.0;
+                dw += s.1;
+            }
+            (F::c(dw * to_f64(invstd[c])), F::c(db))
         })
         .collect();
     let (dw, db): (Vec<F>, Vec<F>) = sums.into_iter().unzip();
     let (dw, db) = (Array1::from_vec(dw), Array1::from_vec(db));
     let count = F::c((x.dim().0 * x.dim().2) as f64);
-    let mut dx = Array3::<F>::zeros(x.raw_dim());
-    Zip::indexed(dx.lanes_mut(Axis(2))).and(x.lanes(Axis(2))).and(g.lanes(Axis(2))).par_for_each(|(_, c), mut dxl, xl, gl| {
+    let dx = map_lanes(x.dim(), |n, c, dxl| {
         let scale = invstd[c] * w.map_or(F::one(), |w| w[c]);
+        let (xl, gl) = (row(&x, n, c), row(&g, n, c));
         if batch_stats {
             // dx = w·invstd·(g − mean(g) − x̂·mean(g·x̂)), means over the M = N·L values of channel c
             let (gm, gxm) = (db[c] / count, dw[c] / count);
-            Zip::from(&mut dxl).and(&xl).and(&gl).for_each(|dx, &x, &g| *dx = scale * (g - gm - (x - mean[c]) * invstd[c] * gxm));
+            dxl.iter_mut().zip(xl).zip(gl).for_each(|((dx, &x), &g)| { dx.write(scale * (g - gm - (x - mean[c]) * invstd[c] * gxm)); });
         } else {
             // dx = w·invstd·g (statistics are constants)
-            Zip::from(&mut dxl).and(&gl).for_each(|dx, &g| *dx = scale * g);
+            dxl.iter_mut().zip(gl).for_each(|(dx, &g)| { dx.write(scale * g); });
         }
     });
     (dx, dw, db)
