@@ -53,9 +53,11 @@ multiversion! {
 multiversion! {
     /// h' = (1 - z)·h + z·tanh(q̃) with z = σ(z̃).
     fn update_plane<F: Float>(o: &mut [F], z: &[F], q: &[F], h: &[F]) {
-        o.iter_mut().zip(z).zip(q).zip(h).for_each(|(((o, &z), &q), &h)| {
+        // two loops (tanh first, into o), each of which vectorises; one loop with both did not
+        o.iter_mut().zip(q).for_each(|(o, &q)| *o = tanh(q));
+        o.iter_mut().zip(z).zip(h).for_each(|((o, &z), &h)| {
             let z = sigmoid(z);
-            *o = (F::one() - z) * h + z * tanh(q);
+            *o = (F::one() - z) * h + z * *o;
         });
     }
 }
