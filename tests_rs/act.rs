@@ -36,3 +36,19 @@ fn unary_bwd_rejects_mismatched_grad_shape() {
     let err = unary_bwd(Act::Tanh, y.view(), g.view()).unwrap_err().to_string();
     assert!(err.contains("tanh") && err.contains("[2, 3]") && err.contains("[3, 2]"), "{err}");
 }
+
+#[test]
+fn f32_sigmoid_and_tanh_are_accurate_over_the_whole_range() {
+    // the f32 kernels (Cephes-style exp with its 2^n from exponent bits) against f64 closed forms,
+    // on a grid through both ends of exp's clamp (|x| up to 100) and the tanh polynomial's switch
+    let xs: Vec<f32> = (-4000..=4000).map(|i| i as f32 * 0.025).chain([-87.4, -87.3, 88.3, 88.4, 0.625, -0.625]).collect();
+    let x = ndarray::Array1::from_vec(xs).into_dyn();
+    let (s, t) = (unary_fwd(Act::Sigmoid, x.view()), unary_fwd(Act::Tanh, x.view()));
+    for ((&xi, &si), &ti) in x.iter().zip(&s).zip(&t) {
+        let v = xi as f64;
+        let (es, et) = (1.0 / (1.0 + (-v).exp()), v.tanh());
+        // a few f32 ulps relative (sigmoid below 1e-37, where exp's clamp acts, only absolutely)
+        assert!((si as f64 - es).abs() <= 4e-7 * es + 1e-37, "sigmoid({xi}) = {si}, expected {es}");
+        assert!((ti as f64 - et).abs() <= 4e-7 * et.abs().max(1e-3), "tanh({xi}) = {ti}, expected {et}");
+    }
+}

@@ -165,8 +165,11 @@ fn exp_f32(x: f32) -> f32 {
     let r = x - n * 0.693_359_4 - n * -2.121_944_4e-4;
     let r2 = r * r;
     let p = (((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r + 1.666_666_5e-1) * r + 5.000_000_1e-1) * r2 + r + 1.0;
-    // 2^n from its exponent bits: (n + 127) << 23, n in [-126, 127]
-    p * f32::from_bits(((n as i32 + 127) as u32) << 23)
+    // 2^n from its exponent bits (n + 127) << 23, n in [-126, 128]. The integer n + 127 is read from
+    // the low mantissa bits of n + 127 + 2^23 (exact, and free of the float-to-int cast, whose
+    // saturating semantics would not vectorise)
+    let biased = (n + (127.0 + 8_388_608.0)).to_bits() - 8_388_608.0f32.to_bits();
+    p * f32::from_bits(biased << 23)
 }
 
 #[inline(always)]
