@@ -51,6 +51,15 @@ def test_cat_split_index_reshape_permute_match_torch():
     check_op([rand((2, 3, 5, 7)), rand((2, 2, 5, 7), seed=5)], tfn, mfn)
 
 
+@pytest.mark.parametrize("relu", [[True, False, True], [False, False, False], [True, True, True]])
+def test_cat_relu_matches_torch(relu):
+    def tfn(*xs):
+        return torch.cat([F.relu(x) if r else x for x, r in zip(xs, relu)], 1)
+
+    check_op([rand((2, 3, 5, 7)), rand((2, 2, 5, 7), seed=5), rand((2, 4, 5, 7), seed=6)], tfn,
+             lambda *xs: M.cat_relu(list(xs), relu, 1))
+
+
 def test_non_contiguous_numpy_inputs_are_accepted():
     a = np.asfortranarray(rand((3, 4, 5)))
     out = M.tanh(mipnet.tensor(a)).numpy()

@@ -20,7 +20,7 @@ fn slice_bwd_gradcheck_f64_on_channel_and_spatial_axes() {
 fn cat_then_slices_give_back_the_pieces() {
     let mut rng = Rng::new(12);
     let (a, b) = (rng.array(&[2, 3, 4], -1.0, 1.0), rng.array(&[2, 5, 4], -1.0, 1.0));
-    let c = cat_fwd(&[a.view(), b.view()], 1).unwrap();
+    let c = cat_fwd(&[a.view(), b.view()], 1, &[]).unwrap();
     assert_eq!(c.shape(), &[2, 8, 4]);
     // the gradient of cat w.r.t. each piece is the matching slice of the upstream gradient
     assert_eq!(slice_fwd(c.view(), 1, 0, 3).unwrap(), a);
@@ -28,10 +28,21 @@ fn cat_then_slices_give_back_the_pieces() {
 }
 
 #[test]
+fn cat_with_relu_flags_rectifies_only_the_flagged_pieces() {
+    let mut rng = Rng::new(13);
+    let (a, b) = (rng.array(&[2, 3, 4], -1.0, 1.0), rng.array(&[2, 5, 4], -1.0, 1.0));
+    let c = cat_fwd(&[a.view(), b.view()], 1, &[false, true]).unwrap();
+    assert_eq!(slice_fwd(c.view(), 1, 0, 3).unwrap(), a);
+    assert_eq!(slice_fwd(c.view(), 1, 3, 8).unwrap(), b.mapv(|v| v.max(0.0)));
+    let err = cat_fwd(&[a.view(), b.view()], 1, &[true]).unwrap_err().to_string();
+    assert!(err.contains("cat") && err.contains("1 flags for 2 tensors"), "{err}");
+}
+
+#[test]
 fn shape_errors_name_op_and_shapes() {
     let a = ndarray::ArrayD::<f32>::zeros(ndarray::IxDyn(&[2, 3, 4]));
     let b = ndarray::ArrayD::<f32>::zeros(ndarray::IxDyn(&[2, 3, 5]));
-    let err = cat_fwd(&[a.view(), b.view()], 1).unwrap_err().to_string();
+    let err = cat_fwd(&[a.view(), b.view()], 1, &[]).unwrap_err().to_string();
     assert!(err.contains("cat") && err.contains("[2, 3, 5]"), "{err}");
     let err = slice_fwd(a.view(), 1, 2, 9).unwrap_err().to_string();
     assert!(err.contains("slice") && err.contains("[2, 3, 4]"), "{err}");

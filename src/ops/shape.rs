@@ -2,7 +2,7 @@
 //!
 //! | op | forward | backward |
 //! |---|---|---|
-//! | cat | `cat_fwd` | slices of g (`slice_fwd`) |
+//! | cat, each input optionally through a ReLU | `cat_fwd` | slices of g (`slice_fwd`; the ReLU's mask from the output) |
 //! | slice x[.., start:stop, ..] | `slice_fwd` | `slice_bwd`: g placed into zeros of the input shape |
 
 use crate::tensor::par_filled;
@@ -10,10 +10,10 @@ use crate::{Error, Float, Result};
 use ndarray::{ArrayD, ArrayViewD, CowArray, IxDyn};
 use std::mem::MaybeUninit;
 
-/// One run of an output built along an axis: `len` positions copied from positions from..from+len of
-/// a standard-layout source whose axis has `src_len` positions, or zeros.
+/// One run of an output built along an axis: `len` positions copied (through a ReLU with `relu`) from
+/// positions from..from+len of a standard-layout source whose axis has `src_len` positions, or zeros.
 enum Part<'a, F> {
-    Copy { src: &'a [F], len: usize, from: usize, src_len: usize },
+    Copy { src: &'a [F], len: usize, from: usize, src_len: usize, relu: bool },
     Zero { len: usize },
 }
 
@@ -46,12 +46,19 @@ fn assemble<F: Float>(op: &'static str, shape: &[usize], axis: usize, parts: &[P
             let run = (starts[i] + parts[i].len() * inner - r).min(out.len());
             let (dst, rest) = out.split_at_mut(run);
             match &parts[i] {
-                Part::Copy { src, from, src_len, .. } => {
+                Part::Copy { src, from, src_len, relu, .. } => {
                     // source offset = o·src_len·inner + from·inner + (r - starts[i])
                     let s0 = o * src_len * inner + from * inner + (r - starts[i]);
-                    dst.iter_mut().zip(&src[s0..s0 + run]).for_each(|(d, &v)| {
-                        d.write(v);
-                    });
+                    let pairs = dst.iter_mut().zip(&src[s0..s0 + run]);
+                    if *relu {
+                        pairs.for_each(|(d, &v)| {
+                            d.write(v.max(F::zero()));
+                        });
+                    } else {
+                        pairs.for_each(|(d, &v)| {
+                            d.write(v);
+                        });
+                    }
                 }
                 Part::Zero { .. } => dst.iter_mut().for_each(|d| {
                     d.write(F::zero());
@@ -63,9 +70,10 @@ fn assemble<F: Float>(op: &'static str, shape: &[usize], axis: usize, parts: &[P
     })
 }
 
-/// Concatenates arrays along `axis`; all other sizes must agree. Torch: `torch.cat(xs, dim=axis)`.
+/// Concatenates arrays along `axis`; all other sizes must agree; input i goes through a ReLU where
+/// `relu[i]` (an empty `relu`: none do). Torch: `torch.cat([F.relu(x) if r else x ...], dim=axis)`.
 /// Copies run in parallel chunks.
-pub fn cat_fwd<F: Float>(xs: &[ArrayViewD<F>], axis: usize) -> Result<ArrayD<F>> {
+pub fn cat_fwd<F: Float>(xs: &[ArrayViewD<F>], axis: usize, relu: &[bool]) -> Result<ArrayD<F>> {
     let op = "cat";
     let first = xs.first().ok_or_else(|| Error::arg(op, "needs at least one tensor"))?;
     let shapes: Vec<(&'static str, &[usize])> = xs.iter().map(|x| ("tensor", x.shape())).collect();
@@ -78,10 +86,13 @@ pub fn cat_fwd<F: Float>(xs: &[ArrayViewD<F>], axis: usize) -> Result<ArrayD<F>>
     if !xs.iter().all(fits) {
         return Err(Error::shape(op, format!("sizes must match except along axis {axis}"), &shapes));
     }
+    if !relu.is_empty() && relu.len() != xs.len() {
+        return Err(Error::arg(op, format!("relu needs one flag per tensor: {} flags for {} tensors", relu.len(), xs.len())));
+    }
     let xs: Vec<CowArray<F, IxDyn>> = xs.iter().map(|x| x.as_standard_layout()).collect();
-    let parts: Vec<Part<F>> = xs.iter().map(|x| {
+    let parts: Vec<Part<F>> = xs.iter().enumerate().map(|(i, x)| {
         let len = x.shape()[axis];
-        Part::Copy { src: x.as_slice().expect("standard layout"), len, from: 0, src_len: len }
+        Part::Copy { src: x.as_slice().expect("standard layout"), len, from: 0, src_len: len, relu: relu.get(i).copied().unwrap_or(false) }
     }).collect();
     let mut shape = first.shape().to_vec();
     shape[axis] = parts.iter().map(Part::len).sum();
@@ -102,7 +113,7 @@ pub fn slice_fwd<F: Float>(x: ArrayViewD<F>, axis: usize, start: usize, stop: us
     let x = x.as_standard_layout();
     let mut shape = x.shape().to_vec();
     shape[axis] = stop - start;
-    let part = Part::Copy { src: x.as_slice().expect("standard layout"), len: stop - start, from: start, src_len: x.shape()[axis] };
+    let part = Part::Copy { src: x.as_slice().expect("standard layout"), len: stop - start, from: start, src_len: x.shape()[axis], relu: false };
     assemble("slice", &shape, axis, &[part])
 }
 
@@ -121,7 +132,7 @@ pub fn slice_bwd<F: Float>(g: ArrayViewD<F>, input_shape: &[usize], axis: usize,
     let len = stop - start;
     let parts = [
         Part::Zero { len: start },
-        Part::Copy { src: g.as_slice().expect("standard layout"), len, from: 0, src_len: len },
+        Part::Copy { src: g.as_slice().expect("standard layout"), len, from: 0, src_len: len, relu: false },
         Part::Zero { len: input_shape[axis] - stop },
     ];
     assemble("slice", input_shape, axis, &parts)

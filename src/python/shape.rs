@@ -6,14 +6,15 @@ use pyo3::prelude::*;
 use super::convert::{arr, float_dispatch, run_kernel};
 use crate::ops::shape as sh;
 
-/// Concatenation of a list of arrays along `axis`.
+/// Concatenation of a list of arrays along `axis`, input i through a ReLU where `relu[i]`.
 #[pyfunction]
-fn cat_fwd<'py>(py: Python<'py>, xs: Vec<Bound<'py, PyAny>>, axis: usize) -> PyResult<Bound<'py, PyAny>> {
+#[pyo3(signature = (xs, axis, relu = Vec::new()))]
+fn cat_fwd<'py>(py: Python<'py>, xs: Vec<Bound<'py, PyAny>>, axis: usize, relu: Vec<bool>) -> PyResult<Bound<'py, PyAny>> {
     let first = xs.first().ok_or_else(|| crate::Error::arg("cat", "needs at least one tensor"))?.clone();
     float_dispatch!("cat", "tensors", &first, F => {
         let held: Vec<PyReadonlyArrayDyn<F>> = xs.iter().map(|x| arr::<F>("cat", "tensors", x)).collect::<PyResult<_>>()?;
         let views: Vec<_> = held.iter().map(|x| x.as_array()).collect();
-        Ok(run_kernel(py, || sh::cat_fwd(&views, axis))?.into_pyarray(py).into_any())
+        Ok(run_kernel(py, || sh::cat_fwd(&views, axis, &relu))?.into_pyarray(py).into_any())
     })
 }
 

@@ -38,7 +38,7 @@ class _CatRelu(Function):
     @staticmethod
     def forward(ctx, *xs, dim, relu):
         ctx.dim, ctx.sizes, ctx.relu = dim, [x.shape[dim] for x in xs], relu
-        out = _core.cat_fwd([_core.unary_fwd(x, "relu") if r else x for x, r in zip(xs, relu)], dim)
+        out = _core.cat_fwd(list(xs), dim, list(relu))
         # only the output is kept: relu's backward mask is out > 0 on the relu'd pieces
         ctx.save_for_backward(out)
         return out
