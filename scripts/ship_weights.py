@@ -1,12 +1,14 @@
 """Ship a campaign run's best weights inside the package, as float16 with their provenance.
 
     python scripts/ship_weights.py ~/.cache/mipnet/train/s1-128x256 [--weights best.safetensors] [--out FILE]
+        [--validation table.json] [--init-provenance FILE]
 
 Writes ``python/mipnet/assets/mipnet_pretrained.safetensors`` with metadata: what it was trained on
 (data specs, generator version, steps, crop, batch, iterations), the exact commands
 (``RUN/commands.txt``), the package version and the validation table of the step it comes from. A run
 started with ``--init`` from earlier shipped weights carries their history: steps add up and their
-commands come first.
+commands come first. A run started from weights that were never shipped (a finished cycle's last weights)
+names, with ``--init-provenance``, a file this script wrote for that run (``--out`` elsewhere).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from mipnet.pretrained import PRETRAINED_PATH, export_pretrained  # noqa: E402
 #: The shipped file of this checkout (where an installed package's own copy comes from).
 CHECKOUT_PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python", "mipnet", "assets",
                                    os.path.basename(PRETRAINED_PATH))
+from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
 from mipnet.training.log import TrainLog  # noqa: E402
 from mipnet.weights import load_safetensors  # noqa: E402
 
@@ -35,6 +38,8 @@ def main() -> int:
     p.add_argument("--validation", help="JSON of {'trained': table, 'sgbm': table} measured on these weights "
                                         "(default: the run's own validation at the weights' step)")
     p.add_argument("--out", default=CHECKOUT_PRETRAINED, help="where to write (default: the checkout's shipped file)")
+    p.add_argument("--init-provenance", help="file written by this script for the weights the run started from, "
+                                             "when those have no provenance of their own")
     args = p.parse_args()
     source = os.path.join(args.run, args.weights)
     _, meta = load_safetensors(source)
@@ -55,7 +60,7 @@ def main() -> int:
     init = config.get("init")
     if init:
         # a run that continued shipped weights: their history first, then this run's steps
-        _, init_meta = load_safetensors(init)
+        _, init_meta = load_safetensors(args.init_provenance or init)
         if "step" not in init_meta or "trained" not in init_meta:
             raise SystemExit(f"{init}: the run started from weights without provenance (no step/trained metadata)")
         total = int(init_meta["step"]) + step
@@ -63,7 +68,8 @@ def main() -> int:
         commands = json.loads(init_meta.get("commands", "[]")) + commands
     export_pretrained(source, args.out, trained=trained, step=str(total), commands=commands, validation=validation,
                       validation_sgbm=sgbm, validation_setup={"pairs": config["val_pairs"], "size": config["val_size"],
-                                                             "iters": config["val_iters"], "seeds_from": 1_000_000})
+                                                             "iters": config["val_iters"],
+                                                             "seeds_from": VALIDATION_SEED_START})
     print(f"wrote {args.out} ({os.path.getsize(args.out) / 2**20:.1f} MiB) from {source} "
           f"(step {step} of the run, {total} in all)")
     return 0
