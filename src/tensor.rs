@@ -57,13 +57,20 @@ const FILL_CHUNK: usize = 1 << 16;
 /// Errors as [`zeros`] for shapes too large to allocate.
 pub fn par_filled<F: crate::Float>(op: &'static str, shape: &[usize],
                                    fill: impl Fn(usize, &mut [std::mem::MaybeUninit<F>]) + Sync) -> Result<ndarray::ArrayD<F>> {
+    par_filled_in(op, shape, FILL_CHUNK, fill)
+}
+
+/// [`par_filled`] with tasks of `chunk` elements (the last may be shorter), e.g. one innermost row each.
+pub fn par_filled_in<F: crate::Float>(op: &'static str, shape: &[usize], chunk: usize,
+                                      fill: impl Fn(usize, &mut [std::mem::MaybeUninit<F>]) + Sync) -> Result<ndarray::ArrayD<F>> {
     use rayon::prelude::*;
+    let chunk = chunk.max(1);
     let too_big = || Error::shape(op, "the output is too large to allocate", &[("output", shape)]);
     let len = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))
         .filter(|&n| n.checked_mul(std::mem::size_of::<F>()).is_some_and(|b| b <= isize::MAX as usize)).ok_or_else(too_big)?;
     let mut v = Vec::<F>::new();
     v.try_reserve_exact(len).map_err(|_| too_big())?;
-    v.spare_capacity_mut()[..len].par_chunks_mut(FILL_CHUNK).enumerate().for_each(|(k, c)| fill(k * FILL_CHUNK, c));
+    v.spare_capacity_mut()[..len].par_chunks_mut(chunk).enumerate().for_each(|(k, c)| fill(k * chunk, c));
     // SAFETY: `fill` wrote every element of every chunk, which together cover the first `len` elements.
     unsafe { v.set_len(len) };
     Ok(ndarray::ArrayD::from_shape_vec(ndarray::IxDyn(shape), v).expect("length equals the shape's size"))

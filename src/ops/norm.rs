@@ -10,7 +10,7 @@
 //! views its input as (N, C, H·W), instance norm as (1, N·C, H·W), so every (n, c) plane is its own
 //! channel there. Per-channel sums accumulate in f64 within one thread, so results are deterministic.
 
-use crate::tensor::{check_nonempty, check_same_shape, fixed};
+use crate::tensor::{check_nonempty, check_same_shape, fixed, par_filled_in};
 use crate::{Error, Float, Result};
 use ndarray::{Array1, Array2, Array3, Array4, ArrayView1, ArrayView3, ArrayViewD, Axis, Ix1, Ix2, Ix4, Zip};
 use rayon::prelude::*;
@@ -187,19 +187,16 @@ fn moments<F: Float>(x: ArrayView3<F>) -> (Array1<F>, Array1<F>) {
 }
 
 /// A (N, C, L) array whose every lane (n, c) is written by `fill(n, c, lane)`, lanes in parallel.
-fn map_lanes<F: Float>(dim: (usize, usize, usize), fill: impl Fn(usize, usize, &mut [MaybeUninit<F>]) + Sync) -> Array3<F> {
-    let mut y = Array3::<F>::uninit(dim);
-    y.as_slice_mut().expect("fresh array").par_chunks_mut(dim.2.max(1)).enumerate().for_each(|(i, lane)| {
-        // lane i is (n, c) = (i / C, i mod C)
-        fill(i / dim.1, i % dim.1, lane)
-    });
-    // SAFETY: the chunks cover every element and `fill` writes every element of its chunk.
-    unsafe { y.assume_init() }
+fn map_lanes<F: Float>(op: &'static str, dim: (usize, usize, usize), fill: impl Fn(usize, usize, &mut [MaybeUninit<F>]) + Sync) -> Result<Array3<F>> {
+    let (c, l) = (dim.1, dim.2);
+    // the task starting at flat index s is lane s / L, i.e. (n, c) = (s / L / C, s / L mod C)
+    let y = par_filled_in(op, &[dim.0, c, l], l, |s, lane| fill(s / l / c, s / l % c, lane))?;
+    Ok(y.into_dimensionality().expect("rank 3"))
 }
 
 /// y[n,c,l] = (x[n,c,l] − mean[c]) · invstd[c] · w[c] + b[c] on a standard-layout (N, C, L) view, parallel over (n, c) lanes.
-fn normalize<F: Float>(x: ArrayView3<F>, mean: &Array1<F>, invstd: &Array1<F>, w: Option<&Array1<F>>, b: Option<&Array1<F>>) -> Array3<F> {
-    map_lanes(x.dim(), |n, c, yl| {
+fn normalize<F: Float>(op: &'static str, x: ArrayView3<F>, mean: &Array1<F>, invstd: &Array1<F>, w: Option<&Array1<F>>, b: Option<&Array1<F>>) -> Result<Array3<F>> {
+    map_lanes(op, x.dim(), |n, c, yl| {
         let scale = invstd[c] * w.map_or(F::one(), |w| w[c]);
         let shift = b.map_or(F::zero(), |b| b[c]);
         yl.iter_mut().zip(row(&x, n, c)).for_each(|(y, &x)| { y.write((x - mean[c]) * scale + shift); });
@@ -208,7 +205,7 @@ fn normalize<F: Float>(x: ArrayView3<F>, mean: &Array1<F>, invstd: &Array1<F>, w
 
 /// Backward of `normalize` on a (N, C, L) view; `batch_stats` says whether mean and invstd were
 /// computed from x (so they carry gradient) or were constants.
-fn normalize_bwd<F: Float>(x: ArrayView3<F>, g: ArrayView3<F>, mean: &Array1<F>, invstd: &Array1<F>, w: Option<&Array1<F>>, batch_stats: bool) -> (Array3<F>, Array1<F>, Array1<F>) {
+fn normalize_bwd<F: Float>(op: &'static str, x: ArrayView3<F>, g: ArrayView3<F>, mean: &Array1<F>, invstd: &Array1<F>, w: Option<&Array1<F>>, batch_stats: bool) -> Result<(Array3<F>, Array1<F>, Array1<F>)> {
     // Per channel: db = Σ g, dw = Σ g·x̂ = invstd·Σ g·(x − mean).
     let sums: Vec<(F, F)> = (0..x.dim().1)
         .into_par_iter()
@@ -226,7 +223,7 @@ fn normalize_bwd<F: Float>(x: ArrayView3<F>, g: ArrayView3<F>, mean: &Array1<F>,
     let (dw, db): (Vec<F>, Vec<F>) = sums.into_iter().unzip();
     let (dw, db) = (Array1::from_vec(dw), Array1::from_vec(db));
     let count = F::c((x.dim().0 * x.dim().2) as f64);
-    let dx = map_lanes(x.dim(), |n, c, dxl| {
+    let dx = map_lanes(op, x.dim(), |n, c, dxl| {
         let scale = invstd[c] * w.map_or(F::one(), |w| w[c]);
         let (xl, gl) = (row(&x, n, c), row(&g, n, c));
         if batch_stats {
@@ -237,8 +234,8 @@ fn normalize_bwd<F: Float>(x: ArrayView3<F>, g: ArrayView3<F>, mean: &Array1<F>,
             // dx = w·invstd·g (statistics are constants)
             dxl.iter_mut().zip(gl).for_each(|(dx, &g)| { dx.write(scale * g); });
         }
-    });
-    (dx, dw, db)
+    })?;
+    Ok((dx, dw, db))
 }
 
 /// The (N·C,) tiling of a per-channel parameter, for the (1, N·C, L) instance-norm view.
@@ -270,7 +267,7 @@ pub fn instance_norm_fwd<F: Float>(x: ArrayViewD<F>, weight: Option<ArrayViewD<F
     let (mean, var) = moments(xv);
     let invstd = var.mapv(|v| F::one() / (v + F::c(eps)).sqrt());
     let (wt, bt) = (w.map(|w| tile(w, n)), b.map(|b| tile(b, n)));
-    let y = normalize(xv, &mean, &invstd, wt.as_ref(), bt.as_ref());
+    let y = normalize(op, xv, &mean, &invstd, wt.as_ref(), bt.as_ref())?;
     let shaped = |a: Array1<F>| a.into_shape_with_order((n, c)).map_err(|_| Error::shape(op, "statistics not reshapeable", &[("input", x.shape())]));
     Ok(InstanceNormOut {
         y: y.into_shape_with_order((n, c, h, wd)).map_err(|_| Error::shape(op, "output not reshapeable", &[("input", x.shape())]))?,
@@ -305,7 +302,7 @@ pub fn instance_norm_bwd<F: Float>(x: ArrayViewD<F>, mean: ArrayViewD<F>, invstd
     let gv = g.view().into_shape_with_order((1, n * c, h * wd)).map_err(reshape_err)?;
     let flat = |s: ndarray::ArrayView2<F>| Array1::from_iter(s.iter().copied());
     let wt = w.map(|w| tile(w, n));
-    let (dx, dw, db) = normalize_bwd(xv, gv, &flat(mean), &flat(invstd), wt.as_ref(), true);
+    let (dx, dw, db) = normalize_bwd(op, xv, gv, &flat(mean), &flat(invstd), wt.as_ref(), true)?;
     // per-plane affine grads (N·C,) summed over n in order: d(param)[c] = Σ_n d[n·C + c]
     let per_c = |d: Array1<F>| d.into_shape_with_order((n, c)).map(|d| d.sum_axis(Axis(0))).map_err(reshape_err);
     Ok(NormGrads {
@@ -365,7 +362,7 @@ pub fn batch_norm_fwd<F: Float>(
         (rm.to_owned(), rv.mapv(|v| F::one() / (v + eps).sqrt()), None, None)
     };
     let (wo, bo) = (w.map(|w| w.to_owned()), b.map(|b| b.to_owned()));
-    let y = normalize(xv, &mean, &invstd, wo.as_ref(), bo.as_ref());
+    let y = normalize(op, xv, &mean, &invstd, wo.as_ref(), bo.as_ref())?;
     Ok(BatchNormOut {
         y: y.into_shape_with_order((n, c, h, wd)).map_err(|_| Error::shape(op, "output not reshapeable", &[("input", &shape)]))?,
         mean,
@@ -399,6 +396,6 @@ pub fn batch_norm_bwd<F: Float>(x: ArrayViewD<F>, mean: ArrayViewD<F>, invstd: A
     // (N, C, H, W) -> (N, C, H·W)
     let xv = x.view().into_shape_with_order((n, c, h * wd)).map_err(reshape_err)?;
     let gv = g.view().into_shape_with_order((n, c, h * wd)).map_err(reshape_err)?;
-    let (dx, dw, db) = normalize_bwd(xv, gv, &mean, &invstd, w.as_ref(), training);
+    let (dx, dw, db) = normalize_bwd(op, xv, gv, &mean, &invstd, w.as_ref(), training)?;
     Ok(NormGrads { x: dx.into_shape_with_order((n, c, h, wd)).map_err(reshape_err)?, weight: dw, bias: db })
 }
