@@ -3,9 +3,9 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
-#   scripts/campaign.sh cycle [STEPS] [s1|s2]
+#   scripts/campaign.sh cycle [STEPS] [s1|s2|s3]
 #                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
-#                                     # with stage 1's (default) or stage 2's crops, from the shipped
+#                                     # with stage 1's (default), stage 2's or stage 3's settings, from the shipped
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
@@ -36,13 +36,15 @@ stage_args() {
   esac
 }
 
-# a cycle's crops, iterations and data: stage 1's, or stage 2's larger crops with inference-like
-# iterations and more water (the under-water sets lose most at large images: docs/training.md)
+# a cycle's crops, iterations and data: stage 1's, stage 2's larger crops with inference-like
+# iterations and more water, or stage 3's still more water (the under-water sets lose most at large images: docs/training.md)
 cycle_args() {
   case "$1" in
     s1) echo "--crop 128 256 --batch-size 4 --iters 3 3 --lr 3e-4" ;;
     s2) echo "--crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --data scenes:0.45 scenes-underwater:0.35 synthetic:0.1 synthetic-underwater:0.1" ;;
-    *) echo "unknown cycle kind $1 (s1 or s2)" >&2; exit 2 ;;
+    # 3: fine-tuning on degraded pairs last: stage 2's crops with seven pairs in ten under water
+    s3) echo "--crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2" ;;
+    *) echo "unknown cycle kind $1 (s1, s2 or s3)" >&2; exit 2 ;;
   esac
 }
 

@@ -1,14 +1,20 @@
-//! The allocator of every Rust-side buffer: the system allocator, plus a small cache of large blocks.
+//! The allocator of every Rust-side buffer: the system allocator, plus a cache of large blocks.
 //!
 //! A fresh multi-MB block is a new mapping, and touching it costs one page fault per 4 KiB page. On
 //! the virtual machines mipnet was profiled on that is 10-20 µs a page: a 35 MB `cat` output took
 //! 80 ms to fault in while its copy took 5 ms, and freeing it again (`munmap`) flushes the TLBs of
 //! every core. MIPNet allocates the same sizes over and over (every sub-update of a level has the same
-//! shapes), so freed large blocks are kept, already mapped, and handed out again for a request of the
-//! same size class (classes 25% apart, see [`class`]). So that the cache does not raise the peak
-//! memory with sizes nobody asks for any more (the encoder's, once the iterations run), a block that
-//! was not reused within `CACHE_AGE` large allocations is freed, and the cache holds at most
-//! `CACHE_BYTES`. Large blocks are also advised to be backed by transparent huge pages (Linux
+//! shapes, every training step the same activations and gradients), so freed large blocks are kept,
+//! already mapped, and handed out again for a request of the same size class (classes 25% apart, see
+//! [`class`]).
+//!
+//! The cache never raises the peak: the large bytes in use plus the bytes cached stay within the
+//! most large bytes ever in use at once (or `CACHE_FLOOR`, whichever is more), so a training step's
+//! backward, which frees activations while it allocates gradients, keeps them mapped for the next
+//! step's forward instead of unmapping and faulting them in again (at 192x384 batch 2 that was
+//! 100,000 page faults and a second of system time a step). A block not reused within `CACHE_AGE`
+//! large allocations is freed, so sizes nobody asks for any more (another image size) do not stay
+//! mapped. Large blocks are also advised to be backed by transparent huge pages (Linux
 //! `MADV_HUGEPAGE`), as numpy does.
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -16,25 +22,28 @@ use std::sync::Mutex;
 
 /// Blocks from this size on are advised and cached.
 const HUGE_MIN: usize = 4 << 20;
-/// Most bytes the cache holds.
-const CACHE_BYTES: usize = 512 << 20;
+/// Bytes in use plus cached allowed even below the high-water mark of bytes in use.
+const CACHE_FLOOR: usize = 512 << 20;
 /// Large allocations after which an unused cached block is freed (a sub-update of MIPNet makes
-/// about 40 to 80).
-const CACHE_AGE: u64 = 160;
+/// about 40 to 80, a training step at 192x384 some thousands).
+const CACHE_AGE: u64 = 8192;
 /// Most blocks the cache holds.
-const CACHE_SLOTS: usize = 64;
+const CACHE_SLOTS: usize = 256;
 /// Alignment of every cached block (malloc's own for large blocks).
 const ALIGN: usize = 16;
 
 /// Cached blocks: (bytes, address, tick when cached); address 0 marks a free slot. `tick` counts
-/// large allocations.
+/// large allocations; `live` is the large bytes handed out and not freed, `high` its maximum so far.
 struct Cache {
     slots: [(usize, usize, u64); CACHE_SLOTS],
     bytes: usize,
     tick: u64,
+    live: usize,
+    high: usize,
 }
 
-static CACHE: Mutex<Cache> = Mutex::new(Cache { slots: [(0, 0, 0); CACHE_SLOTS], bytes: 0, tick: 0 });
+static CACHE: Mutex<Cache> =
+    Mutex::new(Cache { slots: [(0, 0, 0); CACHE_SLOTS], bytes: 0, tick: 0, live: 0, high: 0 });
 
 /// Blocks the cache gave up, to free once its lock is released.
 type Freed = [(usize, *mut u8); CACHE_SLOTS + 1];
@@ -51,10 +60,12 @@ fn class(size: usize) -> usize {
 }
 
 impl Cache {
-    /// Counts one large allocation; a cached block of exactly `bytes` (a class size), removed from
-    /// the cache; and the blocks that aged out, to free.
+    /// Counts one large allocation of `bytes` (a class size) as in use; a cached block of exactly
+    /// that size, removed from the cache; and the blocks that aged out, to free.
     fn take(&mut self, bytes: usize) -> (Option<*mut u8>, Freed) {
         self.tick += 1;
+        self.live += bytes;
+        self.high = self.high.max(self.live);
         let hit = (0..CACHE_SLOTS).find(|&i| self.slots[i].1 != 0 && self.slots[i].0 == bytes).map(|i| {
             let (size, addr, _) = std::mem::replace(&mut self.slots[i], (0, 0, 0));
             self.bytes -= size;
@@ -63,12 +74,20 @@ impl Cache {
         (hit, self.expire())
     }
 
+    /// Counts `bytes` as no longer in use (a block that `take` counted but the system did not give).
+    fn forget(&mut self, bytes: usize) {
+        self.live -= bytes;
+    }
+
     /// Keeps a freed block if it fits; returns what to free (aged-out blocks, the largest cached one
     /// when full, or the block itself).
     fn put(&mut self, bytes: usize, ptr: *mut u8) -> Freed {
+        self.live -= bytes;
         let mut out = self.expire();
         let mut n = out.iter().position(|b| b.1.is_null()).unwrap_or(CACHE_SLOTS);
-        if self.bytes + bytes > CACHE_BYTES || self.slots.iter().all(|s| s.1 != 0) {
+        // in use + cached (this block included) may reach the high-water mark of in use, not beyond
+        let limit = self.high.max(CACHE_FLOOR) - self.live;
+        if self.bytes + bytes > limit || self.slots.iter().all(|s| s.1 != 0) {
             // evict the largest cached block (frees the most with one munmap)
             if let Some(i) = (0..CACHE_SLOTS).filter(|&i| self.slots[i].1 != 0).max_by_key(|&i| self.slots[i].0) {
                 let (size, addr, _) = std::mem::replace(&mut self.slots[i], (0, 0, 0));
@@ -78,7 +97,7 @@ impl Cache {
             }
         }
         match self.slots.iter().position(|s| s.1 == 0) {
-            Some(i) if self.bytes + bytes <= CACHE_BYTES => {
+            Some(i) if self.bytes + bytes <= limit => {
                 self.slots[i] = (bytes, ptr as usize, self.tick);
                 self.bytes += bytes;
             }
@@ -101,6 +120,17 @@ impl Cache {
         }
         out
     }
+}
+
+/// A block of `bytes` fresh from the system, advised to use huge pages; when the system had none
+/// (null), the bytes `take` counted as in use are given back.
+fn fresh_block(p: *mut u8, bytes: usize) -> *mut u8 {
+    if p.is_null() {
+        CACHE.lock().unwrap_or_else(|e| e.into_inner()).forget(bytes);
+    } else {
+        advise_huge_pages(p, bytes);
+    }
+    p
 }
 
 /// [`System`], with large blocks cached and advised to use huge pages.
@@ -138,8 +168,7 @@ unsafe impl GlobalAlloc for HugePageAlloc {
         }
         // SAFETY: non-zero size, valid power-of-two alignment.
         let p = unsafe { System.alloc(Layout::from_size_align_unchecked(bytes, ALIGN)) };
-        advise_huge_pages(p, bytes);
-        p
+        fresh_block(p, bytes)
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
@@ -158,8 +187,7 @@ unsafe impl GlobalAlloc for HugePageAlloc {
         // a fresh block from calloc: zero pages that are only faulted in when written
         // SAFETY: non-zero size, valid power-of-two alignment.
         let p = unsafe { System.alloc_zeroed(Layout::from_size_align_unchecked(bytes, ALIGN)) };
-        advise_huge_pages(p, bytes);
-        p
+        fresh_block(p, bytes)
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
