@@ -1,7 +1,7 @@
 //! Broadcasting arithmetic, sum-to-shape and means: f64 gradchecks of every backward, closed forms, errors.
 mod common;
 
-use _core::ops::elementwise::{affine_fwd, binary_bwd, binary_fwd, mean_bwd, mean_fwd, sum_to_shape, Binary};
+use _core::ops::elementwise::{add_assign, affine_fwd, binary_bwd, binary_fwd, mean_bwd, mean_fwd, sum_to_shape, Binary};
 use common::{dot, gradcheck, Rng};
 
 #[test]
@@ -23,13 +23,45 @@ fn binary_bwd_gradcheck_f64_with_broadcasting_on_both_sides() {
 }
 
 #[test]
+fn same_shape_fast_path_equals_the_elementwise_definition_on_large_and_strided_inputs() {
+    let mut rng = Rng::new(11);
+    // 200,000 elements: several parallel chunks of the contiguous path
+    let (a, b) = (rng.array(&[2, 4, 100, 250], -2.0, 2.0), rng.array(&[2, 4, 100, 250], -2.0, 2.0));
+    let bt = b.view().reversed_axes().to_owned();
+    for op in [Binary::Add, Binary::Sub, Binary::Mul] {
+        let f = |x: f64, y: f64| match op { Binary::Add => x + y, Binary::Sub => x - y, Binary::Mul => x * y };
+        let out = binary_fwd(op, a.view(), b.view()).unwrap();
+        assert!(out.iter().zip(a.iter().zip(b.iter())).all(|(&o, (&x, &y))| o == f(x, y)), "{}", op.name());
+        // a transposed (non-standard-layout) operand takes the broadcasting path: the same values
+        let at = a.view().reversed_axes();
+        let strided = binary_fwd(op, at.clone(), bt.view()).unwrap();
+        assert!(strided.iter().zip(at.iter().zip(bt.iter())).all(|(&o, (&x, &y))| o == f(x, y)), "{} strided", op.name());
+    }
+}
+
+#[test]
+fn add_assign_adds_in_place_and_refuses_other_shapes() {
+    let mut rng = Rng::new(12);
+    let (a, b) = (rng.array(&[3, 70_000], -1.0, 1.0), rng.array(&[3, 70_000], -1.0, 1.0));
+    let mut sum = a.clone();
+    add_assign(sum.view_mut(), b.view()).unwrap();
+    assert!(sum.iter().zip(a.iter().zip(b.iter())).all(|(&s, (&x, &y))| s == x + y));
+    // a strided destination takes the element-wise path
+    let mut t = a.clone();
+    add_assign(t.view_mut().reversed_axes(), b.view().reversed_axes()).unwrap();
+    assert_eq!(t, sum);
+    let err = add_assign(sum.view_mut(), rng.array(&[3, 7], -1.0, 1.0).view()).unwrap_err().to_string();
+    assert!(err.contains("add_") && err.contains("[3, 70000]") && err.contains("[3, 7]"), "{err}");
+}
+
+#[test]
 fn affine_backward_is_affine_with_zero_shift_gradcheck_f64() {
     let mut rng = Rng::new(8);
     let x = rng.array(&[3, 4], -1.0, 1.0);
     let g = rng.array(&[3, 4], -1.0, 1.0);
     // d(alpha x + beta)/dx = alpha
-    let dx = affine_fwd(g.view(), -2.5, 0.0);
-    gradcheck("affine", &x, &dx, |xp| dot(&affine_fwd(xp.view(), -2.5, 0.75), &g));
+    let dx = affine_fwd(g.view(), -2.5, 0.0).unwrap();
+    gradcheck("affine", &x, &dx, |xp| dot(&affine_fwd(xp.view(), -2.5, 0.75).unwrap(), &g));
 }
 
 #[test]

@@ -265,17 +265,21 @@ def _add_grad(grads: dict, owned: set, edge, ig: Any, fresh: bool) -> None:
         if mine:
             owned.add(key)
     elif key in owned:
-        np.add(prev, full, out=prev)
+        _core.add_(prev, full)
     elif mine:
-        np.add(full, prev, out=full)
+        _core.add_(full, prev)
         grads[key] = full
         owned.add(key)
     else:
-        grads[key] = prev + full
+        grads[key] = _core.binary_fwd(prev, full, "add")
         owned.add(key)
 
 
 def _accumulate(leaf, g: np.ndarray) -> None:
     from .tensor import Tensor
 
-    leaf.grad = Tensor._wrap(g.copy()) if leaf.grad is None else Tensor._wrap(leaf.grad.data + g)
+    if leaf.grad is None:
+        leaf.grad = Tensor._wrap(g.copy())
+    else:
+        total = leaf.grad.data
+        leaf.grad = Tensor._wrap(_core.binary_fwd(total, np.asarray(g, dtype=total.dtype), "add"))

@@ -5,11 +5,13 @@
 //! |---|---|---|
 //! | add / sub / mul | `binary_fwd` | `binary_bwd`: (g, ±g) or (g·b, g·a), each summed to its input's shape |
 //! | alpha·x + beta | `affine_fwd` | alpha·g (`affine_fwd` with beta 0) |
+//! | a += b in place | `add_assign` | (gradient accumulation, not differentiated) |
 //! | sum to shape | `sum_to_shape` | broadcast of g |
 //! | mean over axes | `mean_fwd` | `mean_bwd`: g / count broadcast over the reduced axes |
 
+use crate::tensor::{check_same_shape, par_filled, zeros};
 use crate::{Error, Float, Result};
-use ndarray::{ArrayD, ArrayViewD, Axis, IxDyn, Zip};
+use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, Axis, IxDyn, Zip};
 use rayon::prelude::*;
 
 /// Which binary op.
@@ -58,15 +60,30 @@ pub fn broadcast_shape(op: &'static str, a: &[usize], b: &[usize]) -> Result<Vec
 ///
 /// Torch: `a + b`, `a - b`, `a * b`.
 pub fn binary_fwd<F: Float>(op: Binary, a: ArrayViewD<F>, b: ArrayViewD<F>) -> Result<ArrayD<F>> {
-    let shape = broadcast_shape(op.name(), a.shape(), b.shape())?;
-    let (ab, bb) = (a.broadcast(shape.clone()).unwrap(), b.broadcast(shape.clone()).unwrap());
-    let mut out = ArrayD::<F>::zeros(IxDyn(&shape));
-    let z = Zip::from(&mut out).and(&ab).and(&bb);
     match op {
-        Binary::Add => z.par_for_each(|o, &x, &y| *o = x + y),
-        Binary::Sub => z.par_for_each(|o, &x, &y| *o = x - y),
-        Binary::Mul => z.par_for_each(|o, &x, &y| *o = x * y),
+        Binary::Add => elementwise(op.name(), a, b, |x, y| x + y),
+        Binary::Sub => elementwise(op.name(), a, b, |x, y| x - y),
+        Binary::Mul => elementwise(op.name(), a, b, |x, y| x * y),
     }
+}
+
+/// out = f(a, b) with broadcasting; two contiguous arrays of the same shape take one parallel pass
+/// over their flat elements into an output that is not zeroed first.
+fn elementwise<F: Float>(op: &'static str, a: ArrayViewD<F>, b: ArrayViewD<F>, f: impl Fn(F, F) -> F + Sync + Send) -> Result<ArrayD<F>> {
+    let shape = broadcast_shape(op, a.shape(), b.shape())?;
+    let whole = |v: &ArrayViewD<F>| v.shape() == shape.as_slice() && v.is_standard_layout();
+    if let (true, true, Some(xs), Some(ys)) = (whole(&a), whole(&b), a.to_slice(), b.to_slice()) {
+        return par_filled(op, &shape, |start, chunk| {
+            // flat elements start .. start + chunk.len() of all three arrays
+            let (xs, ys) = (&xs[start..start + chunk.len()], &ys[start..start + chunk.len()]);
+            for ((o, &x), &y) in chunk.iter_mut().zip(xs).zip(ys) {
+                o.write(f(x, y));
+            }
+        });
+    }
+    let (ab, bb) = (a.broadcast(shape.clone()).unwrap(), b.broadcast(shape.clone()).unwrap());
+    let mut out = zeros(op, IxDyn(&shape))?;
+    Zip::from(&mut out).and(&ab).and(&bb).par_for_each(|o, &x, &y| *o = f(x, y));
     Ok(out)
 }
 
@@ -93,11 +110,30 @@ pub fn binary_bwd<F: Float>(op: Binary, a: ArrayViewD<F>, b: ArrayViewD<F>, g: A
 }
 
 /// y = alpha·x + beta (scalar alpha, beta). Its backward is `affine_fwd(g, alpha, 0)`.
-pub fn affine_fwd<F: Float>(x: ArrayViewD<F>, alpha: F, beta: F) -> ArrayD<F> {
+pub fn affine_fwd<F: Float>(x: ArrayViewD<F>, alpha: F, beta: F) -> Result<ArrayD<F>> {
     let x = x.as_standard_layout();
-    let mut y = ArrayD::<F>::zeros(x.raw_dim());
-    Zip::from(&mut y).and(&x).par_for_each(|y, &x| *y = alpha * x + beta);
-    y
+    let xs = x.as_slice().expect("standard layout");
+    par_filled("affine", x.shape(), |start, chunk| {
+        // flat elements start .. start + chunk.len()
+        let xs = &xs[start..start + chunk.len()];
+        for (y, &x) in chunk.iter_mut().zip(xs) {
+            y.write(alpha * x + beta);
+        }
+    })
+}
+
+/// a += b in place, for arrays of the same shape (gradient accumulation). Torch: `a.add_(b)`.
+pub fn add_assign<F: Float>(mut a: ArrayViewMutD<F>, b: ArrayViewD<F>) -> Result<()> {
+    check_same_shape("add_", ("a", a.shape()), ("b", b.shape()))?;
+    if let (true, Some(ys)) = (a.is_standard_layout(), b.to_slice()) {
+        let xs = a.as_slice_mut().expect("standard layout");
+        xs.par_chunks_mut(1 << 16).zip(ys.par_chunks(1 << 16)).for_each(|(xs, ys)| {
+            xs.iter_mut().zip(ys).for_each(|(x, &y)| *x += y);
+        });
+    } else {
+        Zip::from(&mut a).and(&b).par_for_each(|x, &y| *x += y);
+    }
+    Ok(())
 }
 
 /// Sums `g` down to `shape`, a shape `g`'s shape was broadcast from (leading axes dropped,

@@ -5,6 +5,7 @@
 //! |---|---|---|
 //! | convex upsampling by rate R | `convex_upsample_fwd` | `convex_upsample_bwd` (flow, mask) |
 
+use crate::ops::lanes::{self, multiversion};
 use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, ArrayViewMut2, Axis, Ix4};
@@ -61,6 +62,16 @@ struct RowCtx<F> {
     nb: Vec<F>,
 }
 
+multiversion! {
+    /// e = exp(m - max) over a run, added into sum (the softmax's numerators, with `lanes::exp`).
+    fn exp_shifted_run<F: Float>(e: &mut [F], m: &[F], max: &[F], sum: &mut [F]) {
+        e.iter_mut().zip(m).zip(max).zip(sum.iter_mut()).for_each(|(((e, &v), &mv), s)| {
+            *e = lanes::exp(v - mv);
+            *s += *e;
+        });
+    }
+}
+
 impl<F: Float> RowCtx<F> {
     fn new(cfg: &ConvexUpsampleCfg, dm: &Dims, flow: &[F], mask: &[F], b: usize, y: usize) -> Self {
         let (rr, w, h, hw) = (cfg.rate * cfg.rate, dm.w, dm.h, dm.h * dm.w);
@@ -85,11 +96,7 @@ impl<F: Float> RowCtx<F> {
             }
             let mut sum = vec![F::zero(); w];
             for (k, wk) in wij.chunks_mut(w).enumerate() {
-                // e_k = exp(m_k - max)
-                wk.iter_mut().zip(m(k)).zip(&mx).zip(sum.iter_mut()).for_each(|(((e, &v), &mv), s)| {
-                    *e = (v - mv).exp();
-                    *s += *e;
-                });
+                exp_shifted_run(wk, m(k), &mx, &mut sum);
             }
             for wk in wij.chunks_mut(w) {
                 // softmax_k = e_k / Σ e

@@ -1,9 +1,9 @@
 //! Crossing the boundary: dtype dispatch, zero-copy array views, and the one GIL-releasing helper.
 
-use numpy::{Element, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{Element, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyReadwriteArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::errors::DTypeError;
+use super::errors::{ArgumentError, DTypeError};
 use crate::Result;
 
 /// The float type of an input array, decided by the first tensor argument of a call.
@@ -44,6 +44,15 @@ pub fn arr<'py, F: Element + crate::Float>(op: &str, name: &str, obj: &Bound<'py
             describe(obj)
         ))),
     }
+}
+
+/// A writeable, zero-copy view of `obj` as an array of `F`: a `DTypeError` for another dtype, an
+/// `ArgumentError` for a read-only array or one already borrowed (e.g. the same array passed twice).
+pub fn arr_mut<'py, F: Element + crate::Float>(op: &str, name: &str, obj: &Bound<'py, PyAny>) -> PyResult<PyReadwriteArrayDyn<'py, F>> {
+    let a = obj.cast::<PyArrayDyn<F>>().map_err(|_| {
+        DTypeError::new_err(format!("{op}: {name} must be a {} numpy array like the other inputs, got {}", F::NAME, describe(obj)))
+    })?;
+    a.try_readwrite().map_err(|e| ArgumentError::new_err(format!("{op}: {name} must be a writeable array not passed twice ({e})")))
 }
 
 /// Runs a kernel with the GIL released, inside mipnet's thread pool, mapping its error once.

@@ -3,7 +3,7 @@
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
 
-use super::convert::{arr, float_dispatch, run_kernel};
+use super::convert::{arr, arr_mut, float_dispatch, run_kernel};
 use crate::ops::elementwise::{self as ew, Binary};
 use crate::Float;
 
@@ -36,7 +36,18 @@ fn affine_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, alpha: f64, beta: f64
     float_dispatch!("affine", "x", x, F => {
         let x = arr::<F>("affine", "x", x)?;
         let xv = x.as_array();
-        Ok(run_kernel(py, || Ok(ew::affine_fwd(xv, F::c(alpha), F::c(beta))))?.into_pyarray(py).into_any())
+        Ok(run_kernel(py, || ew::affine_fwd(xv, F::c(alpha), F::c(beta)))?.into_pyarray(py).into_any())
+    })
+}
+
+/// a += b in place (same shape, same dtype; a writeable).
+#[pyfunction]
+fn add_<'py>(py: Python<'py>, a: &Bound<'py, PyAny>, b: &Bound<'py, PyAny>) -> PyResult<()> {
+    float_dispatch!("add_", "a", a, F => {
+        let b = arr::<F>("add_", "b", b)?;
+        let mut a = arr_mut::<F>("add_", "a", a)?;
+        let (av, bv) = (a.as_array_mut(), b.as_array());
+        run_kernel(py, || ew::add_assign(av, bv))
     })
 }
 
@@ -75,6 +86,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(binary_fwd, m)?)?;
     m.add_function(wrap_pyfunction!(binary_bwd, m)?)?;
     m.add_function(wrap_pyfunction!(affine_fwd, m)?)?;
+    m.add_function(wrap_pyfunction!(add_, m)?)?;
     m.add_function(wrap_pyfunction!(sum_to_shape, m)?)?;
     m.add_function(wrap_pyfunction!(mean_fwd, m)?)?;
     m.add_function(wrap_pyfunction!(mean_bwd, m)?)?;
