@@ -271,13 +271,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                        help="train steps HxWxBATCH:N16,N4 (default 384x512x2:6,6 128x256x4:3,3)")
     model.add_argument("--engines", nargs="+", default=list(ENGINES), choices=list(ENGINES))
     model.add_argument("--warmup", type=int, default=1, help="untimed runs before the timed one (default 1)")
+    model.add_argument("--rounds", type=int, default=1,
+                       help="fresh runs per engine and case, the engines taking turns; the table gives the median "
+                            "(default 1)")
     model.add_argument("--profile", action="store_true", help="also print mipnet's profile of eval and train")
     args = parser.parse_args(argv)
     if args.command == "model":
         from .bench_model import run as run_model
 
         hw = lambda s: tuple(int(v) for v in s.lower().split("x"))  # noqa: E731
-        return run_model(args.threads, [hw(s) for s in args.sizes], args.train, args.engines, args.profile, args.warmup)
+        return run_model(args.threads, [hw(s) for s in args.sizes], args.train, args.engines, args.profile, args.warmup,
+                         max(1, args.rounds))
     try:
         import torch
     except ImportError:

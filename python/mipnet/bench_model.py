@@ -1,7 +1,8 @@
 """Whole-model benchmark: every engine in one run, same weights, inputs, initial field and threads.
 
     python -m mipnet.bench model [--threads 2] [--sizes 384x512 768x1024 1088x1920]
-                                 [--train 384x512x2:6,6 128x256x4:3,3] [--engines ...] [--profile]
+                                 [--train 384x512x2:6,6 128x256x4:3,3] [--engines ...] [--rounds 3]
+                                 [--profile]
 
 Engines: ``mipnet``; ``torch`` (eager, the reference model of tests_py/reference); ``openvino`` (fp32
 hint) and ``onnxruntime`` (CPU), both running the torch reference exported by ``torch.onnx`` (opset 17).
@@ -12,20 +13,23 @@ measurement runs in a fresh subprocess that imports only its own engine (mipnet 
 initial weights from a file), so its peak resident memory (ru_maxrss) is that engine's alone.
 Before any time is printed, the disparities of every engine are checked against mipnet's (at most
 1e-3 px apart) and the training losses of mipnet and torch against each other (1e-2 relative).
-``--profile`` adds mipnet's profiler table (``mipnet.profiler``) for the first eval size and the first
+``--rounds N`` runs every case N times with the engines taking turns and prints the median with its
+range (a shared VM's speed drifts by tens of percent within minutes). ``--profile`` adds mipnet's
+profiler table (``mipnet.profiler``) for the first eval size and the first
 train case.
 """
 
 from __future__ import annotations
 
 import json
+import statistics
 import os
 import platform
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 REFERENCE_HINT = "run from the repository root (the torch reference lives in tests_py/reference)"
 ENGINES = ("mipnet", "torch", "openvino", "onnxruntime")
@@ -222,8 +226,13 @@ def _parse_train(spec: str) -> tuple[int, int, int, tuple[int, int]]:
 
 
 def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], engines: Sequence[str] = ENGINES,
-        profile: bool = False, warmup: int = 1) -> int:
-    """Prints the header, the agreement check and the table; returns the exit status."""
+        profile: bool = False, warmup: int = 1, rounds: int = 1) -> int:
+    """Prints the header, the agreement check and the table; returns the exit status.
+
+    Each case runs every engine ``rounds`` times, a fresh process each, the engines taking turns
+    (mipnet, torch, ..., mipnet, torch, ...), so that a machine whose speed drifts (a shared VM)
+    slows every engine alike; the table gives the median seconds and, with several rounds, the
+    range."""
     ref_dir = reference_dir()
     if ref_dir is None:
         print(f"mipnet.bench model: no torch reference found: {REFERENCE_HINT}", file=sys.stderr)
@@ -232,7 +241,8 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
     engines = [e for e in engines if e not in missing]
     print(machine_header(threads))
     print(f"MIPNet 6+6 iterations (train rows: as given), {threads} threads everywhere, same weights, inputs and "
-          f"initial field; peak = max RSS of a fresh process; seconds of one call after {warmup} untimed")
+          f"initial field; peak = max RSS of a fresh process; seconds of one call after {warmup} untimed"
+          + (f", median of {rounds} rounds (engines taking turns)" if rounds > 1 else ""))
     if missing:
         print(f"not installed (pip install \".[bench]\"): {', '.join(missing)}")
     rows, status = [], 0
@@ -250,21 +260,17 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
                 err = _child(_EXPORT, {**case, "onnx": onnx}, threads).get("error")
                 if err:
                     print(f"torch.onnx export at {h}x{w} failed: {err}", file=sys.stderr)
-            results, outs = {}, {}
-            for e in engines:
-                outs[e] = os.path.join(tmp, f"{e}_{h}x{w}.npy")
-                results[e] = _child(_CHILD, {**case, "engine": e, "onnx": onnx, "out": outs[e]}, threads)
-                print(f"  done: eval {h}x{w} {e}", file=sys.stderr, flush=True)
+            outs = {e: os.path.join(tmp, f"{e}_{h}x{w}.npy") for e in engines}
+            results = _rounds(rounds, engines, lambda e: {**case, "engine": e, "onnx": onnx, "out": outs[e]},
+                              threads, f"eval {h}x{w}")
             status |= _agree(f"eval {h}x{w}", results, outs, "px")
             rows.append((f"eval {h}x{w}", h * w / 1e6, results))
         for spec in train:
             h, w, n, iters = _parse_train(spec)
             case = {**base, "mode": "train", "n": n, "h": h, "w": w, "iters": list(iters)}
-            results, outs = {}, {}
-            for e in [e for e in engines if e in ("mipnet", "torch")]:
-                outs[e] = os.path.join(tmp, f"{e}_train_{spec.replace(':', '_')}.npy")
-                results[e] = _child(_CHILD, {**case, "engine": e, "out": outs[e]}, threads)
-                print(f"  done: train {spec} {e}", file=sys.stderr, flush=True)
+            trainers = [e for e in engines if e in ("mipnet", "torch")]
+            outs = {e: os.path.join(tmp, f"{e}_train_{spec.replace(':', '_')}.npy") for e in trainers}
+            results = _rounds(rounds, trainers, lambda e: {**case, "engine": e, "out": outs[e]}, threads, f"train {spec}")
             status |= _agree(f"train {spec}", results, outs, "rel")
             rows.append((f"train {h}x{w} b{n} it{iters[0]},{iters[1]}", None, results))
         if status:
@@ -274,6 +280,25 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
         if profile:
             _profiles(base, sizes, train, threads, tmp)
     return 0
+
+
+def _rounds(rounds: int, engines: Sequence[str], args_of: Callable[[str], dict], threads: int, name: str) -> dict:
+    """Each engine's result over ``rounds`` turns: its seconds of every round, its largest peak, and
+    the first error if any round failed (later rounds overwrite the output file with the same
+    values: same inputs and weights)."""
+    results: dict = {e: {"seconds": [], "peak_mib": 0.0} for e in engines}
+    for k in range(rounds):
+        for e in engines:
+            if "error" in results[e]:
+                continue
+            r = _child(_CHILD, args_of(e), threads)
+            if "error" in r:
+                results[e] = r
+            else:
+                results[e]["seconds"] += r["seconds"]
+                results[e]["peak_mib"] = max(results[e]["peak_mib"], r["peak_mib"])
+            print(f"  done: {name} {e} (round {k + 1} of {rounds})", file=sys.stderr, flush=True)
+    return results
 
 
 def _agree(name: str, results: dict, outs: dict, kind: str) -> int:
@@ -306,17 +331,19 @@ def _agree(name: str, results: dict, outs: dict, kind: str) -> int:
 
 
 def _table(rows: list) -> str:
-    head = f"{'case':<26} {'engine':<12} {'seconds':>8} {'s/MP':>7} {'peak MiB':>9} {'engine/mipnet':>14}"
+    head = (f"{'case':<26} {'engine':<12} {'seconds':>8} {'range':>13} {'s/MP':>7} {'peak MiB':>9} "
+            f"{'engine/mipnet':>14}")
     lines = [head, "-" * len(head)]
     for name, mp, results in rows:
-        ours = results["mipnet"]["seconds"][0]
+        ours = statistics.median(results["mipnet"]["seconds"])
         for e, r in results.items():
             if "error" in r:
                 continue
-            s = r["seconds"][0]
+            s = statistics.median(r["seconds"])
+            spread = f"{min(r['seconds']):.2f}-{max(r['seconds']):.2f}" if len(r["seconds"]) > 1 else ""
             per_mp = f"{s / mp:.2f}" if mp else ""
             ratio = "" if e == "mipnet" else f"{s / ours:.2f}x"
-            lines.append(f"{name:<26} {e:<12} {s:>8.2f} {per_mp:>7} {r['peak_mib']:>9.0f} {ratio:>14}")
+            lines.append(f"{name:<26} {e:<12} {s:>8.2f} {spread:>13} {per_mp:>7} {r['peak_mib']:>9.0f} {ratio:>14}")
     lines.append("engine/mipnet: the engine's seconds over mipnet's (above 1: mipnet is faster)")
     return "\n".join(lines)
 
