@@ -51,6 +51,15 @@ def test_cat_split_index_reshape_permute_match_torch():
     check_op([rand((2, 3, 5, 7)), rand((2, 2, 5, 7), seed=5)], tfn, mfn)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape,dims", [((2, 35, 5, 7), (0, 2, 3, 1)), ((2, 5, 7, 35), (0, 3, 1, 2)),
+                                        ((3, 17, 40), (0, 2, 1)), ((2, 3, 4, 5), (0, 2, 1, 3)), ((2, 3, 4), (2, 0, 1))])
+def test_permute_matches_torch_forward_and_backward(shape, dims, dtype):
+    # axis rotations after the batch axis (NCHW <-> NHWC) take the core's batched transpose (35 x 35
+    # and 17 x 40: bands and blocks with remainders); other orders take numpy
+    check_op([rand(shape)], lambda x: x.permute(*dims), lambda x: x.permute(*dims), dtype=dtype)
+
+
 @pytest.mark.parametrize("relu", [[True, False, True], [False, False, False], [True, True, True]])
 def test_cat_relu_matches_torch(relu):
     def tfn(*xs):

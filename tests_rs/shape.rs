@@ -1,7 +1,7 @@
 //! cat and slice: f64 gradchecks of the slice backward (cat's backward is slicing), values, errors.
 mod common;
 
-use _core::ops::shape::{cat_fwd, slice_bwd, slice_fwd};
+use _core::ops::shape::{cat_fwd, slice_bwd, slice_fwd, transpose_fwd};
 use common::{dot, gradcheck, Rng};
 
 #[test]
@@ -36,6 +36,20 @@ fn cat_with_relu_flags_rectifies_only_the_flagged_pieces() {
     assert_eq!(slice_fwd(c.view(), 1, 3, 8).unwrap(), b.mapv(|v| v.max(0.0)));
     let err = cat_fwd(&[a.view(), b.view()], 1, &[true]).unwrap_err().to_string();
     assert!(err.contains("cat") && err.contains("1 flags for 2 tensors"), "{err}");
+}
+
+#[test]
+fn transpose_swaps_the_last_two_axes_of_every_image() {
+    // 70 x 33: several bands of 16 output rows and blocks of 64 source rows, with remainders
+    let x = ndarray::Array::from_shape_fn((3, 70, 33), |(n, r, c)| (n * 10_000 + r * 100 + c) as f32).into_dyn();
+    let t = transpose_fwd(x.view()).unwrap();
+    assert_eq!(t.shape(), &[3, 33, 70]);
+    // out[n, c, r] = x[n, r, c]
+    assert!(t.indexed_iter().all(|(i, &v)| v == x[[i[0], i[2], i[1]]]));
+    let back = transpose_fwd(t.view()).unwrap();
+    assert_eq!(back, x);
+    let err = transpose_fwd(x.view().into_shape_with_order(vec![3, 70, 33, 1]).unwrap()).unwrap_err().to_string();
+    assert!(err.contains("transpose") && err.contains("[3, 70, 33, 1]"), "{err}");
 }
 
 #[test]

@@ -4,8 +4,9 @@
 //! |---|---|---|
 //! | cat, each input optionally through a ReLU | `cat_fwd` | slices of g (`slice_fwd`; the ReLU's mask from the output) |
 //! | slice x[.., start:stop, ..] | `slice_fwd` | `slice_bwd`: g placed into zeros of the input shape |
+//! | batched transpose (N, R, C) -> (N, C, R) | `transpose_fwd` | `transpose_fwd` of g |
 
-use crate::tensor::par_filled;
+use crate::tensor::{par_filled, par_filled_in};
 use crate::{Error, Float, Result};
 use ndarray::{ArrayD, ArrayViewD, CowArray, IxDyn};
 use std::mem::MaybeUninit;
@@ -138,3 +139,41 @@ pub fn slice_bwd<F: Float>(g: ArrayViewD<F>, input_shape: &[usize], axis: usize,
     assemble("slice", input_shape, axis, &parts)
 }
 
+
+/// Output rows per task of [`transpose_fwd`]: one 64-byte line of f32 source columns.
+const TRANSPOSE_BAND: usize = 16;
+/// Source rows read per pass over a band (a band x block tile: 4 KiB of f32 lines stay in L1).
+const TRANSPOSE_BLOCK: usize = 64;
+
+/// out[n, c, r] = x[n, r, c]: the last two axes of a 3-D array swapped, materialised contiguous.
+/// With x viewed as (N, C, H·W) it turns NCHW into NHWC, and back with (N, H·W, C).
+///
+/// Tasks are bands of output rows (source columns); a band reads the source in tiles of
+/// `TRANSPOSE_BLOCK` rows, so each source line fetched serves the whole band.
+///
+/// Torch: `x.transpose(1, 2).contiguous()`.
+pub fn transpose_fwd<F: Float>(x: ArrayViewD<F>) -> Result<ArrayD<F>> {
+    let op = "transpose";
+    if x.ndim() != 3 {
+        return Err(Error::shape(op, "expected a 3-D array (N, R, C)", &[("x", x.shape())]));
+    }
+    let (n, rows, cols) = (x.shape()[0], x.shape()[1], x.shape()[2]);
+    let x = x.as_standard_layout();
+    let xs = x.as_slice().expect("standard layout");
+    par_filled_in(op, &[n, cols, rows], TRANSPOSE_BAND * rows.max(1), |start, chunk: &mut [MaybeUninit<F>]| {
+        // output rows start / rows .. : row q is (image q / cols, source column q % cols)
+        let first = start / rows.max(1);
+        let count = chunk.len() / rows.max(1);
+        for r0 in (0..rows).step_by(TRANSPOSE_BLOCK) {
+            let r1 = (r0 + TRANSPOSE_BLOCK).min(rows);
+            for k in 0..count {
+                let (img, c) = ((first + k) / cols, (first + k) % cols);
+                // source element (img, r, c) at (img·rows + r)·cols + c
+                let src = &xs[img * rows * cols + c..];
+                for (r, o) in (r0..r1).zip(&mut chunk[k * rows + r0..k * rows + r1]) {
+                    o.write(src[r * cols]);
+                }
+            }
+        }
+    })
+}

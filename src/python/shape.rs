@@ -38,9 +38,20 @@ fn slice_bwd<'py>(py: Python<'py>, g: &Bound<'py, PyAny>, input_shape: Vec<usize
     })
 }
 
+/// (N, R, C) -> (N, C, R), contiguous.
+#[pyfunction]
+fn transpose_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+    float_dispatch!("transpose", "x", x, F => {
+        let x = arr::<F>("transpose", "x", x)?;
+        let xv = x.as_array();
+        Ok(run_kernel(py, || sh::transpose_fwd(xv))?.into_pyarray(py).into_any())
+    })
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cat_fwd, m)?)?;
     m.add_function(wrap_pyfunction!(slice_fwd, m)?)?;
     m.add_function(wrap_pyfunction!(slice_bwd, m)?)?;
+    m.add_function(wrap_pyfunction!(transpose_fwd, m)?)?;
     Ok(())
 }

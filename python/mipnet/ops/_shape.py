@@ -171,17 +171,31 @@ def flatten(input: Tensor, start_dim: int = 0, end_dim: int = -1) -> Tensor:
     return reshape(x, list(x.shape[:s]) + [-1] + list(x.shape[e + 1:]))
 
 
+def _permuted(x: np.ndarray, dims: tuple[int, ...]) -> np.ndarray:
+    """x.transpose(dims), contiguous. A rotation of the axes after the first, (0, s, .., n-1, 1, .., s-1)
+    (NCHW -> NHWC and back), is one batched transpose (N, A, B) -> (N, B, A) in the core, with
+    A = prod(shape[1:s]) and B = prod(shape[s:]); other orders go through numpy."""
+    n = x.ndim
+    s = dims[1] if n >= 3 else 0
+    rotation = s > 1 and dims == (0, *range(s, n), *range(1, s))
+    if not rotation or x.dtype not in (np.float32, np.float64):
+        return np.ascontiguousarray(x.transpose(dims))
+    a, b = int(np.prod(x.shape[1:s])), int(np.prod(x.shape[s:]))
+    out = _core.transpose_fwd(x.reshape(x.shape[0], a, b))
+    return out.reshape(tuple(x.shape[d] for d in dims))
+
+
 class _Permute(Function):
     name = "permute"
 
     @staticmethod
     def forward(ctx, x, dims):
-        ctx.inverse = tuple(np.argsort(dims))
-        return np.ascontiguousarray(x.transpose(dims))
+        ctx.inverse = tuple(int(d) for d in np.argsort(dims))
+        return _permuted(x, dims)
 
     @staticmethod
     def backward(ctx, g):
-        return np.ascontiguousarray(g.transpose(ctx.inverse)), None
+        return _permuted(g, ctx.inverse), None
 
 
 def permute(input: Tensor, dims: Sequence[int]) -> Tensor:
