@@ -3,6 +3,7 @@
 Usage::
 
     python -m mipnet.bench ops [--threads 2] [--repeat 15] [--warmup 1] [--filter conv] [--peak GFLOPS]
+                               [--step 128x256x4:3,3]
     python -m mipnet.bench model [--threads 2] [--sizes 384x512 768x1024 1088x1920]
                                  [--train 384x512x2:6,6 128x256x4:3,3] [--engines ...] [--profile]
 
@@ -11,7 +12,10 @@ a table: op, shape, mipnet ms and torch ms (medians of runs in alternating block
 warm-up), their ratio, and for rows with a FLOP count the achieved GFLOP/s and its share of the FMA
 peak. The header names the CPU, the ISA path and GEMM plan mipnet runs, and the peak measured at
 start (``_core.fma_peak_gflops``: independent FMA chains on one core and on ``--threads`` threads);
-``--peak`` replaces the measured figure. torch is needed for the comparison; without it the
+``--peak`` replaces the measured figure. ``--step HxWxBATCH:N16,N4`` replaces the fixed rows with
+every distinct convolution of one mipnet training step of that size (forward + backward, with its
+calls per step) and sums them, to compare the step's convolution time with torch's on the same
+shapes. torch is needed for the comparison; without it the
 command says so and exits with status 1.
 
 Adding a row is one line in :func:`ops_cases`: a :class:`BenchCase` with a name, a shape string, a
@@ -72,10 +76,10 @@ def _randn(*shape: int) -> Callable[[np.random.Generator], np.ndarray]:
 
 
 def conv_case(n: int, cin: int, cout: int, h: int, w: int, k: int | tuple[int, int], stride: int = 1,
-              backward: bool = False, torch: Any = None) -> BenchCase:
-    """A conv2d row: k x k (or kh x kw) kernel, padding k // 2 per axis, with bias."""
+              backward: bool = False, torch: Any = None, padding: tuple[int, int] | None = None) -> BenchCase:
+    """A conv2d row: k x k (or kh x kw) kernel, padding k // 2 per axis (or ``padding``), with bias."""
     kh, kw = (k, k) if isinstance(k, int) else k
-    pad = (kh // 2, kw // 2)
+    pad = (kh // 2, kw // 2) if padding is None else padding
     ho, wo = (h + 2 * pad[0] - kh) // stride + 1, (w + 2 * pad[1] - kw) // stride + 1
     fwd_flops = 2.0 * n * cout * cin * kh * kw * ho * wo
     F = torch.nn.functional
@@ -167,6 +171,47 @@ def ops_cases(torch: Any) -> list[BenchCase]:
     ]
 
 
+def step_conv_cases(spec: str, torch: Any) -> list[tuple[BenchCase, int]]:
+    """The distinct convolutions of one mipnet training step (``HxWxBATCH:N16,N4``, random weights and
+    inputs as in ``bench model``) as forward + backward rows, each with how often the step runs it,
+    most frequent first."""
+    import mipnet.ops._conv as conv_module
+    from mipnet.bench_model import _parse_train
+
+    h, w, n, iters = _parse_train(spec)
+    counts: dict[tuple, int] = {}
+    core = conv_module._core
+
+    class _Recorder:
+        """``_core`` for the conv module, counting each forward call's geometry."""
+
+        def __getattr__(self, name: str) -> Any:
+            return getattr(core, name)
+
+        def conv2d_fwd(self, x, weight, bias, stride, padding, **kwargs):
+            key = (x.shape, weight.shape, tuple(stride), tuple(padding))
+            counts[key] = counts.get(key, 0) + 1
+            return core.conv2d_fwd(x, weight, bias, stride, padding, **kwargs)
+
+    rng = np.random.default_rng(0)
+    left = rng.uniform(0, 255, (n, 3, h, w)).astype(np.float32)
+    gt = np.full((n, 1, h, w), 4.0, np.float32)
+    model = mipnet.MIPNet().train()
+    conv_module._core = _Recorder()
+    try:
+        preds = model(left, np.roll(left, -4, axis=3), iters=iters)
+        mipnet.losses.sequence_loss(preds, gt, gt > 0).backward()
+    finally:
+        conv_module._core = core
+    rows = []
+    for (xs, ws, stride, padding), count in sorted(counts.items(), key=lambda kv: -kv[1] * np.prod(kv[0][1])):
+        case = conv_case(xs[0], xs[1], ws[0], xs[2], xs[3], (ws[2], ws[3]), stride[0], backward=True, torch=torch,
+                         padding=padding)
+        case.shape_str += f" x{count}"
+        rows.append((case, count))
+    return rows
+
+
 def _median_ms(runs: Sequence[Callable[[], Any]], warmup: int, repeat: int, rounds: int = 3) -> list[float]:
     """Median wall time in ms of each closure. The closures take turns in `rounds` blocks (a burst of
     load from elsewhere on the machine hits all of them alike); each block starts with `warmup`
@@ -230,14 +275,19 @@ def machine_header(threads: int, peak: float | None = None) -> tuple[str, float]
 
 
 def run_ops(args: argparse.Namespace, torch: Any) -> int:
-    cases = [c for c in ops_cases(torch) if not args.filter or args.filter in f"{c.name} {c.shape_str}"]
+    if args.step:
+        counted = step_conv_cases(args.step, torch)
+    else:
+        counted = [(c, 0) for c in ops_cases(torch)]
+    counted = [(c, k) for c, k in counted if not args.filter or args.filter in f"{c.name} {c.shape_str}"]
     header_text, peak = machine_header(args.threads, args.peak)
     header = ["op", "shape", "mipnet ms", "torch ms", "ratio", "GFLOP/s", f"% of {peak:.0f}"]
-    rows = []
-    for case in cases:
+    rows, step_ms = [], [0.0, 0.0]
+    for case, count in counted:
         inputs = case.make_inputs(np.random.default_rng(0))
         ours, theirs = _median_ms([_runner(case, inputs, lib, torch) for lib in ("mipnet", "torch")],
                                   args.warmup, args.repeat)
+        step_ms = [step_ms[0] + count * ours, step_ms[1] + count * theirs]
         gflops = case.flops / ours / 1e6 if case.flops else None
         rows.append([case.name, case.shape_str, f"{ours:.2f}", f"{theirs:.2f}", f"{ours / theirs:.2f}",
                      "" if gflops is None else f"{gflops:.0f}", "" if gflops is None else f"{100 * gflops / peak:.0f}%"])
@@ -250,6 +300,9 @@ def run_ops(args: argparse.Namespace, torch: Any) -> int:
     print("  ".join("-" * w for w in widths))
     for r in rows:
         print(line(r))
+    if args.step:
+        print(f"the convolutions of one training step {args.step} (forward + backward, x: calls per step), summed: "
+              f"mipnet {step_ms[0] / 1e3:.2f} s, torch {step_ms[1] / 1e3:.2f} s ({step_ms[1] / max(step_ms[0], 1e-9):.2f}x)")
     return 0
 
 
@@ -261,6 +314,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ops.add_argument("--repeat", type=int, default=15, help="timed runs per row and library (default 15)")
     ops.add_argument("--warmup", type=int, default=1, help="untimed runs before each block (default 1)")
     ops.add_argument("--filter", default="", help="only rows whose op or shape contains this text")
+    ops.add_argument("--step", metavar="HxWxBATCH:N16,N4", default=None,
+                     help="instead of the fixed rows: every distinct convolution of one training step of that "
+                          "size (forward + backward), with its count per step and the step's sum")
     ops.add_argument("--peak", type=float, default=None,
                      help="GFLOP/s taken as 100%% (default: the FMA peak measured on --threads threads)")
     model = sub.add_parser("model", help="whole-network timings and peak memory of every engine (mipnet, torch, "
