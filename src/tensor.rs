@@ -49,6 +49,14 @@ pub fn zeros<F: crate::Float, D: Dimension>(op: &'static str, shape: impl ndarra
     Ok(ndarray::Array::from_shape_vec(dim, v).expect("length equals the shape's size"))
 }
 
+/// `chunk` filled with zeros, as a slice of initialised elements (for a [`par_filled`] task that
+/// accumulates into its chunk or writes only part of it).
+pub fn zeroed<F: crate::Float>(chunk: &mut [std::mem::MaybeUninit<F>]) -> &mut [F] {
+    chunk.fill(std::mem::MaybeUninit::new(F::zero()));
+    // SAFETY: every element was just written, and MaybeUninit<F> has the size and alignment of F.
+    unsafe { &mut *(chunk as *mut [std::mem::MaybeUninit<F>] as *mut [F]) }
+}
+
 /// Elements per task of [`par_filled`].
 const FILL_CHUNK: usize = 1 << 16;
 

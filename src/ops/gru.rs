@@ -14,7 +14,7 @@
 //! output planes, so results are deterministic.
 
 use super::lanes::{multiversion, sigmoid, tanh};
-use crate::tensor::{check_nonempty, fixed, zeros};
+use crate::tensor::{check_nonempty, fixed, par_filled_in, zeroed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, Ix4};
 use rayon::prelude::*;
@@ -119,13 +119,16 @@ fn view4<'a, F>(op: &'static str, name: &'static str, a: ArrayViewD<'a, F>) -> R
     fixed::<_, Ix4>(op, name, a)
 }
 
-/// Runs `f(b, k, plane)` for every plane of a fresh (N, K, h, w) array, in parallel.
+/// Runs `f(b, k, plane)` for every plane of a fresh (N, K, h, w) array, in parallel. Each plane is
+/// zeroed by its own task just before `f` (in cache, not as a separate pass over the whole array).
 fn planes<F: Float>(op: &'static str, shape: [usize; 4], f: impl Fn(usize, usize, &mut [F]) + Sync) -> Result<Array4<F>> {
-    let mut out = zeros(op, shape)?;
     let (k_total, plane) = (shape[1], shape[2] * shape[3]);
-    let s = out.as_slice_mut().expect("fresh array");
-    s.par_chunks_mut(plane).enumerate().for_each(|(i, p)| f(i / k_total, i % k_total, p));
-    Ok(out)
+    let out = par_filled_in(op, &shape, plane, |start, p| {
+        // plane i = start / plane is (image i / K, channel i % K)
+        let i = start / plane.max(1);
+        f(i / k_total, i % k_total, zeroed(p))
+    })?;
+    Ok(out.into_dimensionality().expect("4-D shape"))
 }
 
 /// rhx = [σ(r̃) ⊙ h, x]: the input of the candidate's convolution.
