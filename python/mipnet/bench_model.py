@@ -60,12 +60,15 @@ def fma_peak_gflops(threads: int) -> float | None:
 
 def machine_header(threads: int) -> str:
     """CPU model, ISA flags, mipnet's kernel ISA and the measured FMA peak."""
-    model, flags = platform.processor() or "unknown CPU", set()
+    model, flags, ids = platform.processor() or "unknown CPU", set(), {}
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             key, _, value = line.partition(":")
             if key.strip() == "model name":
                 model = value.strip()
+            elif key.strip() in ("cpu family", "model"):
+                # a VM's brand string can be as bare as "AMD EPYC": family and model tell the generation
+                ids[key.strip()] = value.strip()
             elif key.strip() == "flags":
                 flags = set(value.split())
                 break
@@ -77,6 +80,8 @@ def machine_header(threads: int) -> str:
     kernel_isa = getattr(_core, "simd_isa", lambda: "?")()
     peak = fma_peak_gflops(threads)
     peak_s = f"{peak:.0f} GFLOP/s" if peak is not None else "not measured (needs _core.fma_peak_gflops)"
+    if ids:
+        model += f" (family {ids.get('cpu family', '?')} model {ids.get('model', '?')})"
     return (f"CPU: {model}, {os.cpu_count()} logical cores; ISA: {' '.join(isa) or 'baseline x86-64'}; "
             f"mipnet kernels: {kernel_isa}; FMA peak at {threads} threads: {peak_s}")
 

@@ -5,9 +5,11 @@
 //! | relu / sigmoid / tanh | `act::unary_fwd` | `act::unary_bwd` (x, from y) | `F.relu`, `torch.sigmoid`, `torch.tanh` |
 //! | add / sub / mul, broadcasting | `elementwise::binary_fwd` | `elementwise::binary_bwd` (both, summed to shape) | `a + b`, `a - b`, `a * b` |
 //! | alpha * x + beta | `elementwise::affine_fwd` | `elementwise::affine_fwd` with beta 0 | `x * a + b` |
+//! | in-place a += b (the autograd tape's gradient sums) | `elementwise::add_assign` | — | `a.add_(b)` |
 //! | sum to a broadcast shape | `elementwise::sum_to_shape` | broadcast | `g.sum_to_size(shape)` |
 //! | mean over axes | `elementwise::mean_fwd` | `elementwise::mean_bwd` | `x.mean(dim, keepdim)` |
 //! | cat (each input optionally through a ReLU) / slice along an axis | `shape::cat_fwd`, `shape::slice_fwd` | `shape::slice_bwd` (relu'd pieces masked by the output) | `torch.cat`, `x[..., a:b]` |
+//! | batched transpose (N, R, C) -> (N, C, R) (permute NCHW <-> NHWC) | `shape::transpose_fwd` | `shape::transpose_fwd` of g | `x.transpose(1, 2).contiguous()` |
 //! | iAFF attentional gate: σ(L + G) ⊙ x + (1 - σ(L + G)) ⊙ y, G broadcast over H, W | `gate::attention_gate_fwd` | `gate::attention_gate_bwd` (local, global, x, y) | sigmoid/mul/add (spec a.3) |
 //! | GRU reset gate: [σ(r̃) ⊙ h, x] | `gru::gru_reset_fwd` | `gru::gru_reset_bwd` (zr, hx) | `torch.cat([torch.sigmoid(r) * h, x], 1)` |
 //! | GRU update: (1 - σ(z̃)) ⊙ h + σ(z̃) ⊙ tanh(q̃) (optionally followed by x) | `gru::gru_update_fwd` | `gru::gru_update_bwd` (zr, q, hx) | sigmoid/tanh/mul/add (spec a.8) |
