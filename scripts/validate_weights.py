@@ -1,5 +1,6 @@
 """The validation table of a weights file beside the untrained network and OpenCV SGBM, on the held-out
-sets of training validation (pair seeds from 1,000,000) plus the real Middlebury Motorcycle pair.
+sets of training validation (pair seeds from 2,000,000, `VALIDATION_SEED_START`) plus the real Middlebury
+Motorcycle pair.
 
     python scripts/validate_weights.py RUN/model.safetensors --out table.json [--size 256 320] [--pairs 8]
 
