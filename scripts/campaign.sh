@@ -3,9 +3,9 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
-#   scripts/campaign.sh cycle [STEPS] [s1|s2|s3]
+#   scripts/campaign.sh cycle [STEPS] [s1|s2|s3|s4]
 #                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
-#                                     # with stage 1's (default), stage 2's or stage 3's settings, from the shipped
+#                                     # with stage 1's (default), 2's, 3's or 4's settings, from the shipped
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
@@ -44,7 +44,10 @@ cycle_args() {
     s2) echo "--crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --data scenes:0.45 scenes-underwater:0.35 synthetic:0.1 synthetic-underwater:0.1" ;;
     # 3: fine-tuning on degraded pairs last: stage 2's crops with seven pairs in ten under water
     s3) echo "--crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2" ;;
-    *) echo "unknown cycle kind $1 (s1, s2 or s3)" >&2; exit 2 ;;
+    # 4: stage 3's water with crops as wide as the evaluation's 512 columns, validated at the evaluation's size
+    # (the under-water pairs lose most at 384x512, where a hazy far plane spans more of the view than any 384-wide crop)
+    s4) echo "--crop 256 512 --batch-size 2 --iters 4 4 --lr 2e-4 --val-size 384 512 --val-every 200 --data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2" ;;
+    *) echo "unknown cycle kind $1 (s1, s2, s3 or s4)" >&2; exit 2 ;;
   esac
 }
 

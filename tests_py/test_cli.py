@@ -53,6 +53,17 @@ def test_infer_without_images_runs_the_shipped_weights_on_the_bundled_example(tm
     assert "UNTRAINED" not in capsys.readouterr().err
 
 
+def test_infer_scale_writes_a_full_size_disparity_in_input_pixels(tmp_path):
+    from mipnet.cli import EXAMPLE_LEFT, EXAMPLE_RIGHT
+
+    assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1", "--scale", "0.5"]) == 0
+    disp = np.load(tmp_path / "example_left_disp.npy")
+    left = io.read_image(EXAMPLE_LEFT)
+    expected = mipnet.MIPNet.pretrained()(left, io.read_image(EXAMPLE_RIGHT), iters=(1, 1), scale=0.5)
+    assert disp.shape == left.shape[:2]
+    np.testing.assert_array_equal(disp, expected)
+
+
 def test_an_installation_without_weights_says_it_runs_untrained(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(mipnet.pretrained, "PRETRAINED_PATH", tmp_path / "absent.safetensors")
     assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1"]) == 0

@@ -143,3 +143,40 @@ def test_one_cycle_schedule_matches_torch_formula():
         lrs.append(sched.get_last_lr()[0])
     assert lrs[0] == pytest.approx(6e-4 / 25) and lrs[1] == pytest.approx(6e-4)
     assert lrs[-1] == pytest.approx(6e-4 / 25 / 1e4) and all(a >= b for a, b in zip(lrs[1:], lrs[2:]))
+
+
+def _shifted_texture_pair(h: int, w: int, shift: int) -> tuple[np.ndarray, np.ndarray]:
+    """A fronto-parallel pair of constant disparity ``shift``: right(x) = left(x + shift)."""
+    rng = np.random.default_rng(3)
+    coarse = rng.uniform(0, 255, (h // 4 + 1, (w + shift) // 4 + 1, 3))
+    # 4x nearest-upsampled noise plus fine noise: texture at two scales
+    texture = np.repeat(np.repeat(coarse, 4, 0), 4, 1)[:h, :w + shift] * 0.7 + rng.uniform(0, 255, (h, w + shift, 3)) * 0.3
+    texture = texture.astype(np.uint8)
+    return texture[:, :w], texture[:, shift:shift + w]
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.5])
+def test_scale_returns_disparity_in_input_pixels_at_the_input_size(scale):
+    left, right = _shifted_texture_pair(128, 192, 12)
+    disp = mipnet.MIPNet.pretrained()(left, right, scale=scale)
+    assert disp.shape == (128, 192)
+    # away from the borders (and the 12 occluded columns on the left) the shift is found in input pixels
+    assert abs(float(np.median(disp[16:-16, 32:-16])) - 12.0) < 1.0
+
+
+@pytest.mark.parametrize("scale,error,match", [
+    (0.0, mipnet.errors.ArgumentError, "positive"),
+    (-1.0, mipnet.errors.ArgumentError, "positive"),
+    (float("nan"), mipnet.errors.ArgumentError, "positive"),
+    (0.2, mipnet.errors.ShapeError, "smaller than 32x32"),
+])
+def test_bad_scale_raises_clear_errors(scale, error, match):
+    left, right = _shifted_texture_pair(64, 96, 4)
+    with pytest.raises(error, match=match):
+        mipnet.MIPNet().eval()(left, right, scale=scale)
+
+
+def test_scale_is_refused_in_training_mode():
+    left, right = _shifted_texture_pair(64, 96, 4)
+    with pytest.raises(mipnet.errors.ArgumentError, match="eval mode"):
+        mipnet.MIPNet().train()(left, right, scale=0.5)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import errno
 import glob
+import math
 import os
 import sys
 import traceback
@@ -181,7 +182,7 @@ def cmd_infer(args: argparse.Namespace) -> int:
 
     def infer_pair(lp: str, rp: str, images: tuple | None = None) -> None:
         left, right = images or read_pair(lp, rp)
-        disp = model(left, right, iters=tuple(args.iters), seed=args.seed)
+        disp = model(left, right, iters=tuple(args.iters), seed=args.seed, scale=args.scale)
         stem = out / Path(lp).stem
         _write_npy(f"{stem}_disp.npy", disp)
         io.write_pfm(f"{stem}_disp.pfm", disp)
@@ -312,7 +313,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         model = load_model(args.weights)
         with progress_bar(count, "mipnet") as progress:
             def predict(left, right):
-                disp = model(left, right, iters=tuple(args.iters))
+                disp = model(left, right, iters=tuple(args.iters), scale=args.scale)
                 progress.update(1)
                 return disp
 
@@ -358,6 +359,13 @@ def positive_int(text: str) -> int:
     return value
 
 
+def positive_float(text: str) -> float:
+    value = float(text)
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
 class Iters(argparse.Action):
     """``--iters N16 N4``: N16 >= 1 iterations at 1/16, N4 >= 0 at 1/4."""
 
@@ -396,6 +404,9 @@ def build_parser() -> argparse.ArgumentParser:
     inf.add_argument("--vmin", type=float, default=None, help="colour range (default: 1st-99th percentile)")
     inf.add_argument("--vmax", type=float, default=None)
     inf.add_argument("--seed", type=int, default=20, help="seed of the gamma initialisation (default 20)")
+    inf.add_argument("--scale", type=positive_float, default=1.0,
+                     help="resize the pair by this factor before the network, the disparity back (default 1; "
+                          "e.g. 0.5 for photographs whose disparities exceed ~160 px)")
     inf.set_defaults(func=cmd_infer)
 
     info = sub.add_parser("info", help="config, parameter counts per module, thread count, memory estimates")
@@ -413,6 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--root", help="dataset root folder (official layout)")
     ev.add_argument("--weights", help="weights file (.safetensors written by MIPNet.save)")
     ev.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
+    ev.add_argument("--scale", type=positive_float, default=1.0, help="MIPNet's input resize factor (as infer)")
     ev.add_argument("--methods", default="mipnet,sgbm", help="comma-separated: mipnet, sgbm")
     ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light", "random"),
                     help="underwater preset (random: water drawn around the presets per pair)")

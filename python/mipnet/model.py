@@ -12,6 +12,7 @@ import json
 from typing import Any, Sequence
 
 import numpy as np
+from PIL import Image
 
 from . import ops
 from .autograd import checkpoint, is_grad_enabled, no_grad
@@ -62,12 +63,18 @@ class MIPNet(Module):
         use_aff, use_ip, use_rls, rx, ry, vertical_constraint, gamma_shape, gamma_scale,
         max_disp_init: see :class:`MIPNetConfig`.
 
-    Call: ``forward(left, right, iters=(6, 6), seed=20, disp_init=None)``.
+    Call: ``forward(left, right, iters=(6, 6), seed=20, disp_init=None, scale=1.0)``.
 
     Inputs: HxWx3 uint8 RGB arrays, HxW grayscale arrays, or (N,3,H,W) float arrays / Tensors in
     0..255; any H, W >= 32 (replicate-padded to a multiple of 16 and cropped back).
     Eval mode returns a numpy array (H,W) (or (N,H,W) for batched input) of the model's dtype;
     training mode returns the list of supervised predictions, each an (N,1,H,W) Tensor.
+
+    ``scale`` (eval mode only) resizes both images by that factor before the network runs (an
+    antialiased bilinear resize) and the disparity back to the input size, its values divided by the
+    horizontal factor actually applied: ``scale=0.5`` on a large photograph whose disparities exceed
+    what the network was trained on (the shipped weights: up to about 160 px) runs at a quarter of
+    the pixels, as FoundationStereo's ``--scale``. ``disp_init`` is then at 1/16 of the resized size.
     """
 
     def __init__(self, **config: Any):
@@ -111,19 +118,28 @@ class MIPNet(Module):
 
     # ---- the forward pass ----------------------------------------------------------------------------
     def forward(self, left: Any, right: Any, iters: int | Sequence[int] = (6, 6), seed: int | None = 20,
-                disp_init: Any = None):
+                disp_init: Any = None, scale: float = 1.0):
         n16, n4 = _parse_iters(iters)
         l, batched = _as_batch(left, "left", self.dtype)
         r, _ = _as_batch(right, "right", self.dtype)
         if l.shape != r.shape:
             raise ShapeError(f"MIPNet: left and right images differ in shape: left={list(l.shape)}, right={list(r.shape)}")
+        size = l.shape[2:]
+        if scale != 1.0:
+            if self.training:
+                raise ArgumentError("MIPNet: scale is for eval mode; resize training pairs with their disparity instead")
+            l, r = (_resize_images(a, _scaled_size(size, scale)) for a in (l, r))
         pad = _padding(l.shape[2], l.shape[3])
         check_forward(self, l.shape, (n16, n4), self.training and is_grad_enabled())  # MemoryLimitError before OOM
         if self.training:
             preds = self._run(l, r, pad, n16, n4, seed, disp_init)
             return [_crop(p, pad, l.shape) for p in preds]
         with no_grad():
-            disp = _crop(self._run(l, r, pad, n16, n4, seed, disp_init)[-1], pad, l.shape).numpy()[:, 0]
+            pred = _crop(self._run(l, r, pad, n16, n4, seed, disp_init)[-1], pad, l.shape)
+            if pred.shape[2:] != size:
+                # back to the input size; disparity in input pixels = resized disparity · W / W_resized
+                pred = ops.interpolate(pred, size=tuple(size), mode="bilinear", align_corners=False) * (size[1] / l.shape[3])
+            disp = pred.numpy()[:, 0]
         return disp if batched else disp[0]
 
     def _run(self, left: np.ndarray, right: np.ndarray, pad: tuple[int, int, int, int], n16: int, n4: int,
@@ -283,6 +299,28 @@ def _as_batch(img: Any, name: str, dtype: np.dtype) -> tuple[np.ndarray, bool]:
     if not np.all(np.isfinite(a)):
         raise ArgumentError(f"MIPNet: {name} contains NaN or inf")
     return np.ascontiguousarray(a), batched
+
+
+def _scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
+    """(round(H·scale), round(W·scale)), checked to be a size the network takes."""
+    if not (isinstance(scale, (int, float, np.floating, np.integer)) and np.isfinite(scale) and scale > 0):
+        raise ArgumentError(f"MIPNet: scale must be a positive number, got {scale!r}")
+    h, w = (max(1, round(s * float(scale))) for s in size)
+    if min(h, w) < MIN_SIZE:
+        raise ShapeError(f"MIPNet: scale {scale} makes the {size[0]}x{size[1]} images {h}x{w}, smaller than "
+                         f"{MIN_SIZE}x{MIN_SIZE} pixels")
+    return h, w
+
+
+def _resize_images(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(N,3,H,W) 0..255 images resized to ``size`` (h, w): Pillow's bilinear filter, which widens its
+    support when it shrinks (antialiased), per channel in float32."""
+    h, w = size
+    out = np.empty(images.shape[:2] + (h, w), dtype=images.dtype)
+    for index in np.ndindex(*images.shape[:2]):
+        channel = Image.fromarray(np.ascontiguousarray(images[index], dtype=np.float32))  # mode "F"
+        out[index] = np.asarray(channel.resize((w, h), Image.BILINEAR))
+    return out
 
 
 def _padding(h: int, w: int) -> tuple[int, int, int, int]:
