@@ -291,8 +291,9 @@ def check(needed: MemoryEstimate) -> None:
     raise MemoryLimitError(
         f"MIPNet {what} at {needed.height}x{needed.width} (HxW), batch {needed.batch}, iters {needed.iters} "
         f"needs about {format_bytes(needed.activations)} more memory, but only {format_bytes(max(room, 0))} is "
-        f"available ({source}); use smaller images, a smaller batch or fewer iterations "
-        f"(MIPNET_MEMORY_CHECK=0 skips this check)", estimate=needed.activations, available=max(room, 0))
+        f"available ({source}); use smaller images (in eval mode scale=0.5, `mipnet infer --scale 0.5`), a smaller "
+        f"batch or fewer iterations (MIPNET_MEMORY_CHECK=0 skips this check)", estimate=needed.activations,
+        available=max(room, 0))
 
 
 def check_forward(model: Any, shape: tuple[int, ...], iters: tuple[int, int], training: bool) -> None:
