@@ -5,7 +5,8 @@ resolution and with the pair shrunk before inference (the disparity scaled back 
 
 Pairs: `make_pair` (seeds from 1,000,000, as `mipnet eval`), plain and under the `turbid` / `low_light` presets.
 If the error is the same in every band and shrinking the pair helps, what fails is not the disparity range but
-evidence too faint at the full resolution (docs/training.md).
+evidence too faint at the full resolution (docs/training.md). The bias column is the mean signed error
+(prediction - truth): far below zero, the network places what it cannot see farther than it is.
 """
 
 from __future__ import annotations
@@ -25,19 +26,6 @@ from mipnet.data.synthetic import EVAL_SEED_START  # noqa: E402
 BANDS = ((0, 16), (16, 32), (32, 48), (48, np.inf))
 
 
-def predict(model, left, right, scale: float, iters) -> np.ndarray:
-    """The disparity of the pair at full resolution, inferred at `scale` of it."""
-    if scale == 1:
-        return model(left, right, iters=iters)
-    import cv2
-
-    h, w = left.shape[:2]
-    # the inference size: scale · (h, w), rounded to multiples of 8
-    sh, sw = int(round(h * scale / 8)) * 8, int(round(w * scale / 8)) * 8
-    small = [cv2.resize(im, (sw, sh), interpolation=cv2.INTER_AREA) for im in (left, right)]
-    return cv2.resize(model(*small, iters=iters), (w, h), interpolation=cv2.INTER_LINEAR) * (w / sw)
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("weights")
@@ -49,19 +37,20 @@ def main() -> int:
     model = mipnet.load(args.weights).eval()
     print(f"{args.pairs} pairs at {args.size[0]}x{args.size[1]}, iterations {tuple(args.iters)}; "
           "EPE (px) over valid pixels, by ground-truth disparity band")
-    print(f"{'set':10} {'scale':>5} {'EPE':>6} {'bad-3':>6} " + " ".join(f"{f'{lo:g}-{hi:g}':>8}" for lo, hi in BANDS))
+    print(f"{'set':10} {'scale':>5} {'EPE':>6} {'bias':>6} {'bad-3':>6} " + " ".join(f"{f'{lo:g}-{hi:g}':>8}" for lo, hi in BANDS))
     for water in (None, "turbid", "low_light"):
         pairs = list(SyntheticStereo(args.pairs, *args.size, seed=EVAL_SEED_START, underwater=water))
         for scale in (1.0, args.scale):
-            err, gt = [], []
+            signed, gt = [], []
             for s in pairs:
-                d = predict(model, s["left"], s["right"], scale, tuple(args.iters))
-                err.append(np.abs(d - s["disparity"])[s["valid"]])
+                d = model(s["left"], s["right"], iters=tuple(args.iters), scale=scale)
+                signed.append((d - s["disparity"])[s["valid"]])
                 gt.append(s["disparity"][s["valid"]])
-            e, g = np.concatenate(err), np.concatenate(gt)
+            signed, g = np.concatenate(signed), np.concatenate(gt)
+            e = np.abs(signed)
             bands = [e[(g >= lo) & (g < hi)] for lo, hi in BANDS]
             cells = " ".join(f"{b.mean():8.2f}" if b.size else f"{'-':>8}" for b in bands)
-            print(f"{water or 'air':10} {scale:5.3g} {e.mean():6.2f} {100 * (e > 3).mean():5.1f}% {cells}")
+            print(f"{water or 'air':10} {scale:5.3g} {e.mean():6.2f} {signed.mean():6.2f} {100 * (e > 3).mean():5.1f}% {cells}")
     return 0
 
 
