@@ -3,9 +3,9 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
-#   scripts/campaign.sh cycle [STEPS] [s1|s2|s3|s4]
+#   scripts/campaign.sh cycle [STEPS] [s1|s2|s3|s4|s5]
 #                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
-#                                     # with stage 1's (default), 2's, 3's or 4's settings, from the shipped
+#                                     # with stage 1's (default) to 5's settings, from the shipped
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
@@ -47,7 +47,10 @@ cycle_args() {
     # 4: stage 3's water with crops as wide as the evaluation's 512 columns, validated at the evaluation's size
     # (the under-water pairs lose most at 384x512, where a hazy far plane spans more of the view than any 384-wide crop)
     s4) echo "--crop 256 512 --batch-size 2 --iters 4 4 --lr 2e-4 --val-size 384 512 --val-every 200 --data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2" ;;
-    *) echo "unknown cycle kind $1 (s1, s2, s3 or s4)" >&2; exit 2 ;;
+    # 5: stage 4's crops and validation with stage 2's mix (more than half of the pairs in air): stage 4's water-heavy
+    # mix taught "pale, weakly textured = far" (hazy far planes), which put a real photograph's near floor far away
+    s5) echo "--crop 256 512 --batch-size 2 --iters 4 4 --lr 2e-4 --val-size 384 512 --val-every 200 --data scenes:0.45 scenes-underwater:0.35 synthetic:0.1 synthetic-underwater:0.1" ;;
+    *) echo "unknown cycle kind $1 (s1 to s5)" >&2; exit 2 ;;
   esac
 }
 
