@@ -39,17 +39,23 @@ stage_args() {
 # a cycle's crops, iterations and data: stage 1's, stage 2's larger crops with inference-like
 # iterations and more water, or stage 3's still more water (the under-water sets lose most at large images: docs/training.md)
 cycle_args() {
+  # the crops of stages 2-3, and of stages 4-5 (as wide as the evaluation's 512 columns, validated at its 384x512)
+  local mid="--crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4"
+  local wide="--crop 256 512 --batch-size 2 --iters 4 4 --lr 2e-4 --val-size 384 512 --val-every 200"
+  # more than half of the pairs in air, or seven in ten under water
+  local air_heavy="--data scenes:0.45 scenes-underwater:0.35 synthetic:0.1 synthetic-underwater:0.1"
+  local water_heavy="--data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2"
   case "$1" in
     s1) echo "--crop 128 256 --batch-size 4 --iters 3 3 --lr 3e-4" ;;
-    s2) echo "--crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --data scenes:0.45 scenes-underwater:0.35 synthetic:0.1 synthetic-underwater:0.1" ;;
+    s2) echo "$mid $air_heavy" ;;
     # 3: fine-tuning on degraded pairs last: stage 2's crops with seven pairs in ten under water
-    s3) echo "--crop 192 384 --batch-size 2 --iters 4 4 --lr 2e-4 --data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2" ;;
-    # 4: stage 3's water with crops as wide as the evaluation's 512 columns, validated at the evaluation's size
-    # (the under-water pairs lose most at 384x512, where a hazy far plane spans more of the view than any 384-wide crop)
-    s4) echo "--crop 256 512 --batch-size 2 --iters 4 4 --lr 2e-4 --val-size 384 512 --val-every 200 --data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2" ;;
-    # 5: stage 4's crops and validation with stage 2's mix (more than half of the pairs in air): stage 4's water-heavy
-    # mix taught "pale, weakly textured = far" (hazy far planes), which put a real photograph's near floor far away
-    s5) echo "--crop 256 512 --batch-size 2 --iters 4 4 --lr 2e-4 --val-size 384 512 --val-every 200 --data scenes:0.45 scenes-underwater:0.35 synthetic:0.1 synthetic-underwater:0.1" ;;
+    s3) echo "$mid $water_heavy" ;;
+    # 4: stage 3's water with wide crops (the under-water pairs lose most at 384x512, where a hazy far plane
+    # spans more of the view than any 384-wide crop)
+    s4) echo "$wide $water_heavy" ;;
+    # 5: wide crops with stage 2's mix: stage 4's water-heavy mix taught "pale, weakly textured = far" (hazy far
+    # planes), which put a real photograph's near floor far away
+    s5) echo "$wide $air_heavy" ;;
     *) echo "unknown cycle kind $1 (s1 to s5)" >&2; exit 2 ;;
   esac
 }
