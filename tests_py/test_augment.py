@@ -16,6 +16,7 @@ from mipnet.training.augment import (
     AugmentParams,
     SparseStereoAugmentor,
     StereoAugmentor,
+    VeilParams,
     make_augmentor,
 )
 
@@ -391,6 +392,67 @@ def test_yjitter_moves_only_the_right_crop_by_at_most_two_rows(pair):
     assert deltas == {-2, -1, 0, 1, 2}
 
 
+def test_veil_is_drawn_last_and_changes_no_other_draw(pair):
+    """veil_prob > 0 adds its draw after every other, so runs without it see the old augmentation."""
+    plain, veiled = StereoAugmentor((80, 120)), StereoAugmentor((80, 120), veil_prob=1.0)
+    for seed in range(10):
+        without, with_veil = plain.draw((120, 180), _rng(seed)), veiled.draw((120, 180), _rng(seed))
+        assert without.veil is None and with_veil.veil is not None
+        assert dataclasses.replace(with_veil, veil=None) == without
+
+
+def test_veil_draws_follow_the_docstring():
+    aug = StereoAugmentor((80, 120), veil_prob=0.5)
+    veils = [aug.draw((200, 300), _rng(seed)).veil for seed in range(400)]
+    drawn = [v for v in veils if v is not None]
+    assert 0.4 < len(drawn) / len(veils) < 0.6
+    for v in drawn:
+        assert -0.3 * 200 <= v.top <= 0.9 * 200 and 0.15 * 200 <= v.bottom - v.top <= 0.7 * 200
+        assert 0.05 * 200 <= v.soft <= 0.3 * 200 and 0.5 <= v.strength <= 0.92
+        assert all(0.3 * 255 <= c <= 1.0 * 255 for c in v.colour)
+
+
+def test_veil_alpha_is_strength_in_the_band_and_zero_beyond_its_soft_edges():
+    veil = VeilParams(top=20.0, bottom=40.0, soft=10.0, strength=0.8, colour=(200.0, 200.0, 200.0))
+    rows = np.arange(0, 60, dtype=np.float64)
+    alpha = veil.alpha(rows)
+    np.testing.assert_allclose(alpha[20:41], 0.8)
+    np.testing.assert_allclose(alpha[:11], 0.0, atol=1e-12)
+    np.testing.assert_allclose(alpha[50:], 0.0, atol=1e-12)
+    assert np.all(np.diff(alpha[10:21]) > 0) and np.all(np.diff(alpha[40:51]) < 0)
+    image = np.full((60, 4, 3), 100, np.uint8)
+    out = veil.apply(image, first_row=0)
+    # inside the band: 0.2 * 100 + 0.8 * 200 = 180; far outside: unchanged
+    assert (out[25] == 180).all() and (out[0] == 100).all() and (out[59] == 100).all()
+
+
+def test_veil_keeps_the_pair_consistent_for_any_depth():
+    """The veil depends on the row only, so right(x - d) = left(x) still holds where it did,
+    even with y-jitter (both crops are veiled at their source rows)."""
+    texture = make_pair(100, 170, seed=4)["left"]
+    shift = 6
+    # right(x) = left(x + 6): a constant disparity of 6 px everywhere
+    sample = {"left": texture[:, :160], "right": texture[:, shift:shift + 160],
+              "disparity": np.full((100, 160), shift, np.float32), "valid": np.ones((100, 160), bool)}
+    aug = StereoAugmentor((64, 96), **{**OFF, "yjitter": 2}, veil_prob=1.0)
+    changed = 0
+    for seed in range(10):
+        params = aug.draw((100, 160), _rng(seed))
+        out = aug.apply(sample, params)
+        (y0, x0), dy = params.origin, params.delta
+        rows = np.arange(y0 + dy, y0 + dy + 64)
+        expected_right = params.veil.apply(texture[rows, x0 + shift:x0 + shift + 96], y0 + dy)
+        np.testing.assert_array_equal(out["right"], expected_right)
+        np.testing.assert_array_equal(out["left"], params.veil.apply(texture[y0:y0 + 64, x0:x0 + 96], y0))
+        # the left crop's row r and the right crop's row r - dy are one scene row: veiled alike
+        overlap = slice(max(0, dy), 64 + min(0, dy))
+        left_rows = out["left"][overlap, shift:]
+        right_rows = out["right"][overlap.start - dy:overlap.stop - dy, :96 - shift]
+        np.testing.assert_array_equal(left_rows, right_rows)
+        changed += int((out["left"] != texture[y0:y0 + 64, x0:x0 + 96]).any())
+    assert changed >= 5
+
+
 @pytest.mark.parametrize("extra", [0, 1, 2, 3, 4, 5])
 def test_images_only_just_larger_than_the_crop(pair, extra):
     sample = {k: v[:64 + extra, :96 + extra] for k, v in pair.items()}
@@ -470,6 +532,8 @@ def test_nonsense_arguments_raise_named_errors(pair):
         SparseStereoAugmentor((32, -1))
     with pytest.raises(ArgumentError, match="eraser_prob"):
         StereoAugmentor((32, 32), eraser_prob=1.5)
+    with pytest.raises(ArgumentError, match="veil_prob"):
+        StereoAugmentor((32, 32), veil_prob=-0.1)
     with pytest.raises(ArgumentError, match="hue"):
         StereoAugmentor((32, 32), hue=0.7)
     aug = StereoAugmentor((32, 32))

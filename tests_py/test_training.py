@@ -151,10 +151,20 @@ def test_config_precedence_preset_file_flags(tmp_path):
     ({"bogus": 1}, "unknown setting"),
     ({"crop": (50, 96)}, "multiples of 16"),
     ({"steps": 0}, "steps must be positive"),
+    ({"veil": 1.5}, "veil is a probability"),
 ])
 def test_bad_settings_raise(settings, message):
     with pytest.raises(ArgumentError, match=message):
         resolve_config("cpu", overrides=settings)
+
+
+def test_veil_setting_reaches_every_augmentor_only_with_augment():
+    from mipnet.training.fit import build_dataset
+
+    _, augmentors = build_dataset(resolve_config("cpu", overrides={"veil": 0.3, "data": ["synthetic", "scenes"]}))
+    assert [a.veil_prob for a in augmentors] == [0.3, 0.3]
+    _, plain = build_dataset(resolve_config("cpu", overrides={"veil": 0.3, "augment": False, "data": ["synthetic"]}))
+    assert plain[0].veil_prob == 0.0
 
 
 def test_bad_config_file_and_presets(tmp_path):

@@ -13,7 +13,11 @@ from the ``numpy.random.Generator`` it is given (the loader seeds one per sample
 3. spatial: resize by (s_y, s_x) with bilinear half-pixel-centre sampling (``cv2.INTER_LINEAR``)
    and the disparity multiplied by s_x (dense), or a nearest scatter of the valid ground-truth
    pixels (sparse);
-4. the crop, the right one shifted vertically by ``delta`` px (``yjitter``, dense only).
+4. the crop, the right one shifted vertically by ``delta`` px (``yjitter``, dense only);
+5. optionally (``veil_prob``, off by default, not in RAFT) a veil: a band of rows faded towards one
+   pale colour in both views alike. Rows are epipolar lines, so the veil covers the same scene points
+   in both views whatever their depth; it is there so that "pale and weakly textured" stops meaning
+   "far" (as it does under water, where haze grows with range), e.g. a pale near floor in air.
 
 Speed: every draw is made before any pixel is touched, so only the source window that the crop
 reads is coloured, occluded and resampled, which gives exactly the pixels of "whole image, then
@@ -35,7 +39,7 @@ from PIL import Image, ImageEnhance, ImageStat
 
 from ..errors import ArgumentError, DTypeError, ShapeError
 
-__all__ = ["AugmentParams", "ColorParams", "StereoAugmentor", "SparseStereoAugmentor", "make_augmentor"]
+__all__ = ["AugmentParams", "ColorParams", "VeilParams", "StereoAugmentor", "SparseStereoAugmentor", "make_augmentor"]
 
 #: Occluder sides are scaled by min(1, shorter image side / this) (RAFT's 50-99 px suit >= 384 px images).
 OCCLUDER_REFERENCE_SIDE = 384
@@ -62,6 +66,40 @@ class ColorParams:
 
 
 @dataclass(frozen=True)
+class VeilParams:
+    """A band of rows faded towards one colour: ``pixel = (1 - a(y)) pixel + a(y) colour``.
+
+    ``a(y) = strength`` for source rows ``top <= y <= bottom`` and falls to 0 over ``soft`` rows
+    on either side along a raised cosine. Applied to both views at the same source rows.
+    """
+
+    top: float
+    bottom: float
+    soft: float
+    strength: float
+    colour: tuple[float, float, float]
+
+    def alpha(self, rows: np.ndarray) -> np.ndarray:
+        """a(y) at source rows ``rows``, shape of ``rows``."""
+        # rows outside [top, bottom]: distance to the band, 0 inside it
+        outside = np.maximum(np.maximum(self.top - rows, rows - self.bottom), 0.0)
+        # raised cosine from 1 at the band's edge to 0 at soft rows from it
+        return self.strength * 0.5 * (1.0 + np.cos(np.pi * np.minimum(outside / self.soft, 1.0)))
+
+    def apply(self, image: np.ndarray, first_row: int) -> np.ndarray:
+        """The veiled copy of ``image`` whose row 0 is source row ``first_row``.
+
+        Shapes
+        ------
+        image: (h, w, 3) uint8 -> (h, w, 3) uint8.
+        """
+        # image row i is source row first_row + i
+        a = self.alpha(first_row + np.arange(image.shape[0], dtype=np.float32)).astype(np.float32)[:, None, None]
+        veiled = image * (1.0 - a) + a * np.asarray(self.colour, dtype=np.float32)
+        return np.clip(np.rint(veiled), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
 class AugmentParams:
     """Every random draw of one augmentation, in the input image's coordinates unless stated.
 
@@ -81,6 +119,8 @@ class AugmentParams:
         Crop origin in the resized left image.
     delta : int
         The right crop starts at row ``y0 + delta`` (y-jitter).
+    veil : VeilParams or None
+        Step 5, in input rows; None: no veil.
     """
 
     color: tuple[ColorParams, ...]
@@ -90,6 +130,7 @@ class AugmentParams:
     size: tuple[int, int]
     origin: tuple[int, int]
     delta: int
+    veil: VeilParams | None = None
 
 
 def _resize_taps(size_in: int, scale: float, start: int, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -331,6 +372,11 @@ class StereoAugmentor:
         image is only just larger than the crop.
     max_disparity : float or None
         After augmentation ``valid &= |d| < max_disparity`` (default 512, RAFT's rule); None: off.
+    veil_prob : float
+        Probability of the veil (step 5; default 0, RAFT has none): a band of 15-70% of the input's
+        rows, starting anywhere from 30% above the image to 90% down it, with soft edges of 5-30% of
+        the height, faded by 50-92% towards a grey of 35-95% with a slight tint. No draw is made
+        when it is 0, so runs without it see exactly the augmentation they saw before it existed.
 
     Notes
     -----
@@ -362,7 +408,8 @@ class StereoAugmentor:
                  asymmetric_prob: float = 0.2, eraser_prob: float = 0.5, eraser_size: tuple[int, int] = (50, 99),
                  patch_prob: float = 0.5, spatial: bool = True, spatial_prob: float = 1.0,
                  scale_range: tuple[float, float] = (-0.2, 0.4), stretch_prob: float = 0.8,
-                 max_stretch: float = 0.2, yjitter: int = 2, max_disparity: float | None = 512.0):
+                 max_stretch: float = 0.2, yjitter: int = 2, max_disparity: float | None = 512.0,
+                 veil_prob: float = 0.0):
         owner = type(self).__name__
         self.crop = _check_pair(crop, "crop", owner, positive=True)
         self.photometric = bool(photometric)
@@ -394,10 +441,12 @@ class StereoAugmentor:
         if max_disparity is not None and not max_disparity > 0:
             raise ArgumentError(f"{owner}: max_disparity must be > 0 or None, got {max_disparity}")
         self.max_disparity = None if max_disparity is None else float(max_disparity)
+        self.veil_prob = _check_prob(veil_prob, "veil_prob", owner)
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(crop={self.crop}, photometric={self.photometric}, spatial={self.spatial}, "
-                f"eraser_prob={self.eraser_prob}, patch_prob={self.patch_prob}, yjitter={self.yjitter})")
+                f"eraser_prob={self.eraser_prob}, patch_prob={self.patch_prob}, yjitter={self.yjitter}, "
+                f"veil_prob={self.veil_prob})")
 
     def __call__(self, sample: dict, rng: np.random.Generator) -> dict:
         """Augment one sample with draws from ``rng`` (``apply(sample, draw(shape, rng))``).
@@ -444,7 +493,20 @@ class StereoAugmentor:
         color = self._draw_color(rng)
         erase, patch = self._draw_occluders(height, width, rng)
         scale, size, origin, delta = self._draw_geometry(height, width, rng)
-        return AugmentParams(color=color, erase=erase, patch=patch, scale=scale, size=size, origin=origin, delta=delta)
+        veil = self._draw_veil(height, rng) if self.veil_prob > 0 else None
+        return AugmentParams(color=color, erase=erase, patch=patch, scale=scale, size=size, origin=origin, delta=delta,
+                             veil=veil)
+
+    def _draw_veil(self, height: int, rng: np.random.Generator) -> VeilParams | None:
+        if rng.random() >= self.veil_prob:
+            return None
+        top = rng.uniform(-0.3, 0.9) * height
+        bottom = top + rng.uniform(0.15, 0.7) * height
+        soft = rng.uniform(0.05, 0.3) * height
+        grey = rng.uniform(0.35, 0.95) * 255.0
+        colour = np.clip(grey + rng.uniform(-0.05, 0.05, 3) * 255.0, 0.0, 255.0)
+        return VeilParams(top=float(top), bottom=float(bottom), soft=float(soft), strength=float(rng.uniform(0.5, 0.92)),
+                          colour=tuple(float(c) for c in colour))
 
     def _draw_color_once(self, rng: np.random.Generator) -> ColorParams:
         order = tuple(int(i) for i in rng.permutation(4))
@@ -554,6 +616,8 @@ class StereoAugmentor:
         (ly, ly_end), (ry, ry_end), (wx, wx_end) = _span(rows), _span(rows_right), _span(cols)
         left_window, right_window = self._color_and_occlude(
             left[ly:ly_end, wx:wx_end], right[ry:ry_end, wx:wx_end], (ry, wx), right, params)
+        if params.veil is not None:
+            left_window, right_window = params.veil.apply(left_window, ly), params.veil.apply(right_window, ry)
         disparity = np.asarray(sample["disparity"], dtype=np.float32)
         valid = np.asarray(sample["valid"], dtype=bool)
         finite = np.isfinite(disparity)

@@ -51,6 +51,9 @@ class TrainConfig:
         Keep BatchNorm in eval mode (fine-tuning).
     augment : bool
         Spec c.3 augmentation (photometric, eraser, scale/stretch, y-jitter); False: crop only.
+    veil : float
+        Probability of the row veil of :class:`mipnet.training.StereoAugmentor` (``veil_prob``), a
+        depth-independent fade towards a pale colour; 0 (default): off. Ignored without ``augment``.
     data : list of str
         Data specs (see :mod:`mipnet.training.data_spec`), e.g. ``["scenes:0.7", "kitti2015:/data/kitti:0.3"]``.
     init : str or None
@@ -80,6 +83,7 @@ class TrainConfig:
     max_disp: float = 700.0
     freeze_bn: bool = False
     augment: bool = True
+    veil: float = 0.0
     data: list[str] = dataclasses.field(default_factory=lambda: list(DEFAULT_DATA))
     init: str | None = None
     seed: int = 1234
@@ -101,7 +105,7 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool):
                 raise ArgumentError(f"TrainConfig: {name} must be an integer, got {value!r}")
-        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp"):
+        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp", "veil"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
                 raise ArgumentError(f"TrainConfig: {name} must be a finite number, got {value!r}")
@@ -125,6 +129,8 @@ class TrainConfig:
             raise ArgumentError(f"TrainConfig: crop must be multiples of 16 and >= 32, got {list(self.crop)}")
         if self.iters[0] < 1 or self.iters[1] < 0:
             raise ArgumentError(f"TrainConfig: iters needs N16 >= 1 and N4 >= 0, got {list(self.iters)}")
+        if not 0.0 <= self.veil <= 1.0:
+            raise ArgumentError(f"TrainConfig: veil is a probability in [0, 1], got {self.veil}")
         if self.val_every < 0 or self.val_pairs < 0 or self.workers < 0:
             raise ArgumentError("TrainConfig: val_every, val_pairs and workers must be >= 0")
         if not self.data:
