@@ -120,7 +120,7 @@ def test_validation_records_and_best_weights(tmp_path):
     fit(_tiny_config(steps=2, val_every=2, val_pairs=1, val_size=(64, 96), val_iters=(1, 1)), run, progress=False)
     vals = [r for r in TrainLog(os.path.join(run, "log.jsonl")).records() if "val" in r]
     assert len(vals) == 1 and vals[0]["step"] == 2
-    assert set(vals[0]["val"]) == {"air", "turbid", "low_light", "scenes"}
+    assert set(vals[0]["val"]) == {"air", "turbid", "low_light", "scenes", "scenes_veiled"}
     for metrics in vals[0]["val"].values():
         assert metrics["epe"] > 0 and 0 <= metrics["bad3"] <= 100
     assert os.path.isfile(os.path.join(run, "best.safetensors"))
@@ -165,6 +165,22 @@ def test_veil_setting_reaches_every_augmentor_only_with_augment():
     assert [a.veil_prob for a in augmentors] == [0.3, 0.3]
     _, plain = build_dataset(resolve_config("cpu", overrides={"veil": 0.3, "augment": False, "data": ["synthetic"]}))
     assert plain[0].veil_prob == 0.0
+
+
+def test_veiled_validation_set_fades_the_lower_rows_and_stays_out_of_the_mean():
+    from mipnet.training.validation import mean_epe, validation_sets
+
+    sets = validation_sets((96, 128), 2)
+    plain, veiled = sets["scenes"][1], sets["scenes_veiled"][1]
+    assert len(sets["scenes_veiled"]) == 2
+    np.testing.assert_array_equal(veiled["disparity"], plain["disparity"])
+    np.testing.assert_array_equal(veiled["left"][:20], plain["left"][:20])  # above the veil's soft edge
+    for view in ("left", "right"):
+        # the bottom rows keep a fifth of their contrast around the pale veil colour
+        assert veiled[view][-10:].std() < 0.3 * plain[view][-10:].std() + 1.0
+        assert veiled[view][-10:].mean() > 150
+    table = {k: {"epe": float(i + 1)} for i, k in enumerate(("air", "turbid", "low_light", "scenes"))}
+    assert mean_epe({**table, "scenes_veiled": {"epe": 100.0}}) == mean_epe(table) == 2.5
 
 
 def test_bad_config_file_and_presets(tmp_path):
