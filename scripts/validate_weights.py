@@ -2,7 +2,7 @@
 sets of training validation (pair seeds from 2,000,000, `VALIDATION_SEED_START`) plus the real Middlebury
 Motorcycle pair.
 
-    python scripts/validate_weights.py RUN/model.safetensors --out table.json [--size 256 320] [--pairs 8]
+    python scripts/validate_weights.py RUN/model.safetensors --out table.json [--size 256 320] [--pairs 8] [--no-untrained]
 
 The JSON (``{"trained": ..., "untrained": ..., "sgbm": ...}``) is what ``scripts/ship_weights.py
 --validation`` records in the shipped file.
@@ -30,11 +30,15 @@ def main() -> int:
     p.add_argument("--size", type=int, nargs=2, default=(256, 320), metavar=("H", "W"))
     p.add_argument("--pairs", type=int, default=8)
     p.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
+    p.add_argument("--no-untrained", dest="untrained", action="store_false",
+                   help="skip the untrained network's table (it only shows where training started)")
     args = p.parse_args()
     sets = validation_sets(tuple(args.size), args.pairs)
     sets["motorcycle"] = [mipnet.data.RealPairs("motorcycle")[0]]
     mipnet.manual_seed(0)
-    models = {"trained": mipnet.load(args.weights).eval(), "untrained": mipnet.MIPNet().eval()}
+    models = {"trained": mipnet.load(args.weights).eval()}
+    if args.untrained:
+        models["untrained"] = mipnet.MIPNet().eval()
     tables = {}
     for name, model in models.items():
         start = time.perf_counter()
