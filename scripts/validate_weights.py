@@ -1,6 +1,6 @@
 """The validation table of a weights file beside the untrained network and OpenCV SGBM, on the held-out
 sets of training validation (pair seeds from 2,000,000, `VALIDATION_SEED_START`) plus the real Middlebury
-Motorcycle pair.
+Motorcycle pair and, once fetched (`mipnet fetch cones`), the real Middlebury Cones pair (evaluation only).
 
     python scripts/validate_weights.py RUN/model.safetensors --out table.json [--size 256 320] [--pairs 8] [--no-untrained]
 
@@ -35,6 +35,10 @@ def main() -> int:
     args = p.parse_args()
     sets = validation_sets(tuple(args.size), args.pairs)
     sets["motorcycle"] = [mipnet.data.RealPairs("motorcycle")[0]]
+    try:
+        sets["cones"] = [mipnet.data.RealPairs("cones")[0]]
+    except mipnet.errors.ArgumentError as error:  # not fetched: the table goes without it
+        print(f"validate_weights: no cones row ({error})", file=sys.stderr)
     mipnet.manual_seed(0)
     models = {"trained": mipnet.load(args.weights).eval()}
     if args.untrained:

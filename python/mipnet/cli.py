@@ -254,7 +254,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-DATASETS = ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater", "motorcycle", "sceneflow", "middlebury2014", "middeval3", "eth3d",
+DATASETS = ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater", "motorcycle", "cones", "sceneflow", "middlebury2014", "middeval3", "eth3d",
             "kitti2012", "kitti2015", "crestereo")
 
 
@@ -269,8 +269,8 @@ def open_dataset(args: argparse.Namespace):
             raise ArgumentError(f"--dataset {args.dataset} needs --preset (clear, coastal, turbid, low_light, random)")
         generator = data.SceneStereo if args.dataset.startswith("scenes") else data.SyntheticStereo
         return generator(args.n, h, w, seed=args.seed, underwater=args.preset if underwater else None)
-    if args.dataset == "motorcycle":  # a real Middlebury pair bundled in scikit-image (evaluation only)
-        return data.RealPairs("motorcycle", underwater=args.preset, seed=args.seed)
+    if args.dataset in data.REAL_SETS:  # real Middlebury pairs (evaluation only); --root: where cones was fetched
+        return data.RealPairs(args.dataset, underwater=args.preset, seed=args.seed, root=args.root)
     if not args.root:
         raise ArgumentError(f"--dataset {args.dataset} needs --root DIR")
     make = {
@@ -283,6 +283,13 @@ def open_dataset(args: argparse.Namespace):
         "crestereo": lambda: data.CREStereo(args.root),
     }[args.dataset]
     return make()
+
+
+def cmd_fetch(args: argparse.Namespace) -> int:
+    from .data.real import fetch_real
+
+    print(f"mipnet fetch: {args.name} is in {fetch_real(args.name, root=args.root)}")
+    return 0
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -438,6 +445,11 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--aggregation", default="mean", choices=("mean", "pooled"),
                     help="mean of per-image metrics (ETH3D) or pooled over all pixels (KITTI)")
     ev.set_defaults(func=cmd_eval)
+
+    fetch = sub.add_parser("fetch", help="download a real evaluation pair that no package ships ready (cones)")
+    fetch.add_argument("name", choices=("cones",))
+    fetch.add_argument("--root", help="folder to keep it in (default $MIPNET_REAL_DATA or ~/.cache/mipnet/real)")
+    fetch.set_defaults(func=cmd_fetch)
 
     from .training.cli import add_parser
 

@@ -14,7 +14,7 @@ from .datasets import (
     StereoDataset,
 )
 from .loader import DataLoader, default_collate
-from .real import REAL_SETS, RealPairs
+from .real import REAL_SETS, RealPairs, fetch_real, real_data_dir
 from .scenes import GENERATOR_VERSION, SceneStereo, make_scene
 from .synthetic import SyntheticStereo, make_pair, synthetic_underwater_pairs
 
@@ -40,4 +40,6 @@ __all__ = [
     "GENERATOR_VERSION",
     "RealPairs",
     "REAL_SETS",
+    "fetch_real",
+    "real_data_dir",
 ]
