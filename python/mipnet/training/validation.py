@@ -86,10 +86,11 @@ def validate_sgbm(sets: dict) -> dict | None:
 def format_validation(step: int | None, table: dict, reference: dict | None = None) -> str:
     """One line per set: mipnet's metrics (and SGBM's in brackets)."""
     lines = ["validation" + (f" at step {step}:" if step is not None else ":")]
+    width = max((len(name) for name in table), default=0)
     for name, m in table.items():
         ref = reference.get(name) if reference else None
         cells = [f"{k} {m[k]:.3f}" + (f" [sgbm {ref[k]:.3f}]" if ref else "") for k in METRICS]
-        lines.append(f"  {name:<10} " + "  ".join(cells))
+        lines.append(f"  {name:<{width}} " + "  ".join(cells))
     return "\n".join(lines)
 
 
