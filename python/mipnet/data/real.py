@@ -69,7 +69,7 @@ def fetch_real(name: str = "cones", root: str | None = None, url: str | None = N
     if name != "cones":
         raise ArgumentError(f"fetch_real: only 'cones' is fetched (motorcycle ships in scikit-image), got {name!r}")
     folder = os.path.join(root or real_data_dir(), name)
-    if all(os.path.isfile(os.path.join(folder, f)) for f in _CONES_FILES):
+    if not _missing_cones_files(folder):
         return folder
     source, digest = _CONES_SOURCE
     with urllib.request.urlopen(url or source, timeout=120) as response:
@@ -80,15 +80,22 @@ def fetch_real(name: str = "cones", root: str | None = None, url: str | None = N
     os.makedirs(folder, exist_ok=True)
     with tarfile.open(fileobj=io.BytesIO(payload), mode="r:gz") as archive:
         for target, member in _CONES_FILES.items():
-            try:
-                data = archive.extractfile(member)
-            except KeyError:
-                data = None
-            if data is None:
+            if member not in archive.getnames() or (data := archive.extractfile(member)) is None:
                 raise FormatError(f"fetch_real('cones'): {member} is not in {url or source}")
             with atomic_write(os.path.join(folder, target)) as f:
                 f.write(data.read())
     return folder
+
+
+def _missing_cones_files(folder: str) -> list[str]:
+    """The files of the Cones pair that ``folder`` lacks."""
+    return [f for f in _CONES_FILES if not os.path.isfile(os.path.join(folder, f))]
+
+
+def _pair(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> dict:
+    """A real pair's sample: ground truth valid where finite and positive, 0 elsewhere."""
+    valid = np.isfinite(disparity) & (disparity > 0)
+    return {"left": left, "right": right, "disparity": np.where(valid, disparity, 0).astype(np.float32), "valid": valid}
 
 
 def _motorcycle() -> dict:
@@ -96,14 +103,12 @@ def _motorcycle() -> dict:
         from skimage.data import stereo_motorcycle
     except ImportError:
         raise ArgumentError("the motorcycle pair ships in scikit-image: pip install scikit-image") from None
-    left, right, disparity = stereo_motorcycle()
-    valid = np.isfinite(disparity) & (disparity > 0)
-    return {"left": left, "right": right, "disparity": np.where(valid, disparity, 0).astype(np.float32), "valid": valid}
+    return _pair(*stereo_motorcycle())
 
 
 def _cones(root: str | None) -> dict:
     folder = os.path.join(root or real_data_dir(), "cones")
-    missing = [f for f in _CONES_FILES if not os.path.isfile(os.path.join(folder, f))]
+    missing = _missing_cones_files(folder)
     if missing:
         raise ArgumentError(f"the cones pair is not in {folder} (missing {missing}): fetch it once with "
                             "`mipnet fetch cones` (downloads the pandora source package from PyPI, 42 MB)")
@@ -117,8 +122,7 @@ def _cones(root: str | None) -> dict:
         raise FormatError(f"cones pair in {folder}: left {list(views[0].shape)}, right {list(views[1].shape)}, "
                           f"disparity {list(disparity.shape)}: expected (H, W, 3) twice and (H, W)")
     left, right = (np.clip(np.rint(v), 0, 255).astype(np.uint8) for v in views)
-    valid = np.isfinite(disparity) & (disparity > 0)
-    return {"left": left, "right": right, "disparity": np.where(valid, disparity, 0).astype(np.float32), "valid": valid}
+    return _pair(left, right, disparity)
 
 
 class RealPairs(Dataset):
