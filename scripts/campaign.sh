@@ -3,9 +3,9 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
-#   scripts/campaign.sh cycle [STEPS] [s1|s2|s3|s4|s5|s6]
+#   scripts/campaign.sh cycle [STEPS] [s1|s2|s3|s4|s5|s6|s7]
 #                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
-#                                     # with stage 1's (default) to 6's settings, from the shipped
+#                                     # with stage 1's (default) to 7's settings, from the shipped
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
@@ -60,7 +60,10 @@ cycle_args() {
     # a pale veil fades near rows (the scenes_veiled validation set), and a veil that ignores depth makes low
     # contrast a reason to match harder instead of a sign of distance
     s6) echo "$wide $air_heavy --veil 0.35" ;;
-    *) echo "unknown cycle kind $1 (s1 to s6)" >&2; exit 2 ;;
+    # 7: stage 4's water-heavy mix with stage 6's veil: stage 4 brought the under-water sets closest to their
+    # targets and lost the real pairs to "pale means far", the prior the veil now argues against
+    s7) echo "$wide $water_heavy --veil 0.35" ;;
+    *) echo "unknown cycle kind $1 (s1 to s7)" >&2; exit 2 ;;
   esac
 }
 

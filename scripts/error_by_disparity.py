@@ -2,11 +2,14 @@
 resolution and with the pair shrunk before inference (the disparity scaled back up), in air and under water.
 
     python scripts/error_by_disparity.py WEIGHTS [--size 384 512] [--pairs 6] [--scale 0.667] [--iters 4 4]
+    python scripts/error_by_disparity.py WEIGHTS --per-pair turbid [--pairs 12] [--iters 6 6]
 
 Pairs: `make_pair` (seeds from 1,000,000, as `mipnet eval`), plain and under the `turbid` / `low_light` presets.
 If the error is the same in every band and shrinking the pair helps, what fails is not the disparity range but
 evidence too faint at the full resolution (docs/training.md). The bias column is the mean signed error
 (prediction - truth): far below zero, the network places what it cannot see farther than it is.
+``--per-pair SET`` prints one row per pair of one set instead (air, turbid or low_light): its EPE, bad-3, median
+truth, and the median signed error in 8-px bands of truth that hold at least 5% of its pixels.
 """
 
 from __future__ import annotations
@@ -24,6 +27,24 @@ from mipnet.data import SyntheticStereo  # noqa: E402
 from mipnet.data.synthetic import EVAL_SEED_START  # noqa: E402
 
 BANDS = ((0, 16), (16, 32), (32, 48), (48, np.inf))
+SETS = {"air": None, "turbid": "turbid", "low_light": "low_light"}
+
+
+def per_pair(model, args) -> None:
+    """One row per pair of set ``args.per_pair``: where its error lies, and with which sign."""
+    water = SETS[args.per_pair]
+    print(f"{args.per_pair}, {args.pairs} pairs at {args.size[0]}x{args.size[1]}, iterations {tuple(args.iters)}; "
+          "bias = median (prediction - truth) in the 8-px band of truth, share of the pair's pixels in brackets")
+    for i, s in enumerate(SyntheticStereo(args.pairs, *args.size, seed=EVAL_SEED_START, underwater=water)):
+        d = model(s["left"], s["right"], iters=tuple(args.iters))
+        signed, g = (d - s["disparity"])[s["valid"]], s["disparity"][s["valid"]]
+        e = np.abs(signed)
+        # band b holds truth in [8b, 8b + 8)
+        band = (g // 8).astype(int)
+        cells = [f"{8 * b}-{8 * b + 8}: {np.median(signed[band == b]):+6.2f} ({100 * np.mean(band == b):2.0f}%)"
+                 for b in np.unique(band) if np.mean(band == b) >= 0.05]
+        print(f"pair {EVAL_SEED_START + i}  EPE {e.mean():5.2f}  bad-3 {100 * (e > 3).mean():5.1f}%  "
+              f"median truth {np.median(g):5.1f}  " + "  ".join(cells))
 
 
 def main() -> int:
@@ -33,8 +54,12 @@ def main() -> int:
     p.add_argument("--pairs", type=int, default=6)
     p.add_argument("--scale", type=float, default=0.667, help="the shrunk inference size, as a fraction")
     p.add_argument("--iters", type=int, nargs=2, default=(4, 4), metavar=("N16", "N4"))
+    p.add_argument("--per-pair", choices=sorted(SETS), help="one row per pair of this set instead of the bands")
     args = p.parse_args()
     model = mipnet.load(args.weights).eval()
+    if args.per_pair:
+        per_pair(model, args)
+        return 0
     print(f"{args.pairs} pairs at {args.size[0]}x{args.size[1]}, iterations {tuple(args.iters)}; "
           "EPE (px) over valid pixels, by ground-truth disparity band")
     print(f"{'set':10} {'scale':>5} {'EPE':>6} {'bias':>6} {'bad-3':>6} " + " ".join(f"{f'{lo:g}-{hi:g}':>8}" for lo, hi in BANDS))
