@@ -9,6 +9,7 @@
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
+#   scripts/campaign.sh args KIND     # print the training arguments of cycle kind KIND (s1 to s7)
 #
 # The run uses a snapshot of the package (python/ and the built core) copied to ENGINE, so rebuilding
 # or editing the working tree never changes the code under a running process; `start` refreshes the
@@ -100,11 +101,14 @@ case "${1:-}" in
     if [ -n "$pid" ]; then kill -TERM "$pid" && echo "SIGTERM sent to $pid; waiting for the checkpoint"; else echo "no run"; fi
     while pgrep -f "mipnet train" >/dev/null; do sleep 2; done
     ;;
+  args)
+    cycle_args "${2:?cycle kind}"
+    ;;
   status)
     for run in "$ROOT"/train/*/; do
       echo "== $run"; tail -n 2 "$run/log.jsonl" 2>/dev/null | cut -c1-300
       grep '"val"' "$run/log.jsonl" 2>/dev/null | tail -n 1 | cut -c1-600
     done
     ;;
-  *) sed -n 2,13p "$0"; exit 2 ;;
+  *) sed -n 2,14p "$0"; exit 2 ;;
 esac

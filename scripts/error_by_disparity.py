@@ -63,7 +63,7 @@ def main() -> int:
     print(f"{args.pairs} pairs at {args.size[0]}x{args.size[1]}, iterations {tuple(args.iters)}; "
           "EPE (px) over valid pixels, by ground-truth disparity band")
     print(f"{'set':10} {'scale':>5} {'EPE':>6} {'bias':>6} {'bad-3':>6} " + " ".join(f"{f'{lo:g}-{hi:g}':>8}" for lo, hi in BANDS))
-    for water in (None, "turbid", "low_light"):
+    for water in SETS.values():
         pairs = list(SyntheticStereo(args.pairs, *args.size, seed=EVAL_SEED_START, underwater=water))
         for scale in (1.0, args.scale):
             signed, gt = [], []

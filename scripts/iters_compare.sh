@@ -23,15 +23,14 @@ stamp=$(date -u +%Y%m%d-%H%M)
 engine=$ROOT/engine-iters-$stamp
 mkdir -p "$engine" && cp -a python/mipnet "$engine/"
 seed=$(( 10#${stamp//[!0-9]/} % 2147483647 ))
-common="--preset cpu --crop 256 512 --batch-size 2 --lr 2e-4 --val-size 384 512
-        --data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2 --veil 0.35 --seed $seed"
+# stage 7's arguments; the --iters and --val-every given after them win
+common="--preset cpu $(scripts/campaign.sh args s7) --seed $seed"
 for spec in "4 4 $steps44" "3 3 $steps33"; do
   read -r n16 n4 steps <<<"$spec"
   run=$ROOT/train/iters-$stamp-${n16}x${n4}
   mkdir -p "$run"
   cp "$init" "$run/init.safetensors"
-  # shellcheck disable=SC2086
-  args="$(echo $common) --iters $n16 $n4 --steps $steps --val-every $steps --init $run/init.safetensors --out $run"
+  args="$common --iters $n16 $n4 --steps $steps --val-every $steps --init $run/init.safetensors --out $run"
   echo "$(date -u +%FT%TZ) MIPNET_NUM_THREADS=1 $PY -m mipnet train $args" >> "$run/commands.txt"
   # shellcheck disable=SC2086
   PYTHONPATH=$engine MIPNET_NUM_THREADS=1 nohup nice -n 19 "$PY" -m mipnet train $args >> "$run/stdout.log" 2>&1 &
