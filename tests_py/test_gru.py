@@ -37,6 +37,17 @@ def test_gru_update_matches_torch(keep_x, dtype):
              lambda a, b, c: update_torch(a, b, c, keep_x), lambda a, b, c: M.gru_update(a, b, c, keep_x), dtype=dtype)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("kernel,padding", [((3, 3), (1, 1)), ((1, 5), (0, 2)), ((5, 1), (2, 0))])
+def test_gru_candidate_matches_torch(kernel, padding, dtype):
+    # conv2d over [sigmoid(r) h, x], the backward rebuilding [r h, x] from zr and hx
+    n, hid, x, h, w = 2, 4, 5, 6, 7
+    check_op([rand((n, 2 * hid, h, w), low=-3, high=3), rand((n, hid + x, h, w), seed=1),
+              rand((3, hid + x, *kernel), seed=2), rand((3,), seed=3)],
+             lambda zr, hx, wt, b: torch.nn.functional.conv2d(reset_torch(zr, hx), wt, b, padding=padding),
+             lambda zr, hx, wt, b: M.gru_candidate(zr, hx, wt, b, padding), dtype=dtype)
+
+
 def test_gru_step_matches_torch_conv_gru():
     # the module: stacked z/r convolution + fused gates = torch's three-convolution ConvGRU
     from reference.mipnet_torch import ConvGRU as TorchGRU

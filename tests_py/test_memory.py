@@ -1,6 +1,11 @@
 """Memory: the estimate counts the tensors the autograd graph really keeps, matches the measured peak
 of fresh processes within 25%, and a pass that would not fit raises MemoryLimitError before it runs."""
 
+import os
+import platform
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -110,3 +115,26 @@ def test_info_size_prints_the_estimates(capsys):
     model = mipnet.MIPNet()
     for mode in ("eval", "train"):
         assert memory.estimate(100, 200, 3, mode, (2, 4), model).describe() in out
+
+
+_POLICY_SCRIPT = """
+import numpy as np, mipnet
+from mipnet import _allocator
+model = mipnet.MIPNet().eval()
+with mipnet.no_grad():
+    model(np.zeros((1, 3, 32, 64), np.float32), np.zeros((1, 3, 32, 64), np.float32), iters=(1, 1))
+print(_allocator.training_policy_active())
+x = mipnet.tensor(np.ones(3, np.float32), requires_grad=True)
+(x * 2).sum().backward()
+print(_allocator.training_policy_active())
+"""
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="the policy is glibc's mallopt")
+@pytest.mark.parametrize("env, after_backward", [({}, "True"), ({"MIPNET_MALLOC": "default"}, "False")])
+def test_the_training_allocator_policy_starts_with_the_first_recorded_op(env, after_backward):
+    """Eval leaves glibc's allocator alone; the first op recorded for a backward switches it to the
+    training policy (mipnet/_allocator.py), unless MIPNET_MALLOC=default."""
+    out = subprocess.run([sys.executable, "-c", _POLICY_SCRIPT], env={**os.environ, **env}, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == ["False", after_backward]

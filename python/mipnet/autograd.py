@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from . import _core
+from . import _allocator, _core
 from . import profiler as _profiler
 from .errors import DTypeError
 
@@ -118,6 +118,8 @@ class Function:
             raise DTypeError(f"{cls.name}: inputs must share one dtype, got {shapes}")
         needs = tuple(isinstance(a, Tensor) and a.requires_grad for a in args)
         track = is_grad_enabled() and any(needs)
+        if track:  # recording for a backward: training's allocator policy from now on (mipnet/_allocator.py)
+            _allocator.use_training_policy()
         ctx = Context(needs)
         arrays = [a.data if isinstance(a, Tensor) else a for a in args]
         prof = _profiler.ACTIVE

@@ -174,11 +174,12 @@ def _stacked_zr(owner: Module, convz: Conv2d, convr: Conv2d) -> tuple[Tensor, Te
 def _gru_pass(owner: Module, convz: Conv2d, convr: Conv2d, convq: Conv2d, hx: Tensor, keep_x: bool) -> Tensor:
     """One GRU pass on hx = [h, x]: z = σ(Wz hx); r = σ(Wr hx); q = tanh(Wq [r h, x]);
     h' = (1 - z) h + z q. z and r come from one convolution (convz's and convr's weights stacked
-    along the output channels: one GEMM), the gate arithmetic from two fused kernels. Returns h', or
-    [h', x] (the next pass's input) with ``keep_x``."""
+    along the output channels: one GEMM), the gate arithmetic from two fused kernels; [r h, x] is
+    rebuilt in the backward rather than kept. Returns h', or [h', x] (the next pass's input) with
+    ``keep_x``."""
     w, b = _stacked_zr(owner, convz, convr)
     zr = ops.conv2d(hx, w, b, convz.stride, convz.padding)
-    q = convq(ops.gru_reset(zr, hx))
+    q = ops.gru_candidate(zr, hx, convq.weight, convq.bias, convq.padding)
     return ops.gru_update(zr, q, hx, keep_x)
 
 

@@ -166,13 +166,14 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     # at 1/4 also tanh / ReLU of hidden and context; at 1/16 (unfused) the pooled hidden
     levels = level(shared + 256, 4) + level(shared + (0 if fused else 128), 16)
     # one IP call: the warp's (see above); motion encoder conv inputs (10 + 2), flow1's ReLU (64) and the
-    # ReLU'd cat (128); ConvGRU [h, x] and [r h, x] (2 x 352), the z/r pre-activations (256) and q's (128);
-    # head input h' (128), the disp head's ReLU (128); the prediction's checkpoint input, the flow (2)
-    ip_call = warp_ip + (12 + 64 + 128) + (2 * 352 + 256 + 128) + (128 + 128) + 2
+    # ReLU'd cat (128); ConvGRU [h, x] (352; [r h, x] is rebuilt in the backward), the z/r
+    # pre-activations (256) and q's (128); head input h' (128), the disp head's ReLU (128); the
+    # prediction's checkpoint input, the flow (2)
+    ip_call = warp_ip + (12 + 64 + 128) + (352 + 256 + 128) + (128 + 128) + 2
     # one RLS call: the warp's; motion conv inputs (corr + 2), the corr1 / flow1 ReLUs (64 + 64) and the
-    # ReLU'd cat (192); SepConvGRU, per pass [h, x], [r h, x] (2 x 384), z/r and q pre-activations
-    # (256 + 128); h' (128), the disp head's ReLU (256); the flow (2)
-    rls_call = warp_rls + (corr_rls + 2 + 128 + 192) + 2 * (2 * 384 + 256 + 128) + (128 + 256) + 2
+    # ReLU'd cat (192); SepConvGRU, per pass [h, x] (384), z/r and q pre-activations (256 + 128);
+    # h' (128), the disp head's ReLU (256); the flow (2)
+    rls_call = warp_rls + (corr_rls + 2 + 128 + 192) + 2 * (384 + 256 + 128) + (128 + 256) + 2
     per_iter = (ip_call if cfg.use_ip else 0) + (rls_call if cfg.use_rls else 0)
     updates = level(per_iter * n16, 16) + level(per_iter * n4, 4)
     # the prediction heads' own activations, where they are kept rather than recomputed
@@ -183,8 +184,9 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     predictions = n16 * (cfg.use_ip + cfg.use_rls) + n4 * (cfg.use_ip + cfg.use_rls)
     loss = level(predictions + 1.25, 1)
     # backward, on top of the saved tensors while they are freed: the gradients accumulated for the
-    # tensors all 1/4 iterations read (shared, hidden and context) and those flowing through one update
-    backward = level(shared + 256 + max(ip_call if cfg.use_ip else 0, rls_call if cfg.use_rls else 0), 4)
+    # tensors all 1/4 iterations read (shared, hidden and context), those flowing through one update,
+    # and a GRU pass's rebuilt [r h, x] with its gradient (2 x 384)
+    backward = level(shared + 256 + max(ip_call if cfg.use_ip else 0, rls_call if cfg.use_rls else 0) + 2 * 384, 4)
     # one stack of convz and convr weights per GRU pass, kept by its convolutions (shared by all calls)
     stacked = itemsize * 256 * (((352 * 9 + 1) if cfg.use_ip else 0) + (2 * (384 * 5 + 1) if cfg.use_rls else 0))
     return {"encoder": encoder, "levels": levels, "updates": updates, "heads": heads, "loss": loss, "stacked": stacked,
