@@ -4,7 +4,8 @@ resolution and with the pair shrunk before inference (the disparity scaled back 
     python scripts/error_by_disparity.py WEIGHTS [--size 384 512] [--pairs 6] [--scale 0.667] [--iters 4 4]
     python scripts/error_by_disparity.py WEIGHTS --per-pair turbid [--pairs 12] [--iters 6 6]
 
-Pairs: `make_pair` (seeds from 1,000,000, as `mipnet eval`), plain and under the `turbid` / `low_light` presets.
+Pairs: `make_pair` from the validation seeds (2,000,000 on, as `scripts/validate_weights.py`; the test seeds of
+`mipnet eval` stay unseen by analyses that guide training), plain and under the `turbid` / `low_light` presets.
 If the error is the same in every band and shrinking the pair helps, what fails is not the disparity range but
 evidence too faint at the full resolution (docs/training.md). The bias column is the mean signed error
 (prediction - truth): far below zero, the network places what it cannot see farther than it is.
@@ -24,7 +25,7 @@ sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "
 
 import mipnet  # noqa: E402
 from mipnet.data import SyntheticStereo  # noqa: E402
-from mipnet.data.synthetic import EVAL_SEED_START  # noqa: E402
+from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
 
 BANDS = ((0, 16), (16, 32), (32, 48), (48, np.inf))
 SETS = {"air": None, "turbid": "turbid", "low_light": "low_light"}
@@ -35,7 +36,7 @@ def per_pair(model, args) -> None:
     water = SETS[args.per_pair]
     print(f"{args.per_pair}, {args.pairs} pairs at {args.size[0]}x{args.size[1]}, iterations {tuple(args.iters)}; "
           "bias = median (prediction - truth) in the 8-px band of truth, share of the pair's pixels in brackets")
-    for i, s in enumerate(SyntheticStereo(args.pairs, *args.size, seed=EVAL_SEED_START, underwater=water)):
+    for i, s in enumerate(SyntheticStereo(args.pairs, *args.size, seed=VALIDATION_SEED_START, underwater=water)):
         d = model(s["left"], s["right"], iters=tuple(args.iters))
         signed, g = (d - s["disparity"])[s["valid"]], s["disparity"][s["valid"]]
         e = np.abs(signed)
@@ -43,7 +44,7 @@ def per_pair(model, args) -> None:
         band = (g // 8).astype(int)
         cells = [f"{8 * b}-{8 * b + 8}: {np.median(signed[band == b]):+6.2f} ({100 * np.mean(band == b):2.0f}%)"
                  for b in np.unique(band) if np.mean(band == b) >= 0.05]
-        print(f"pair {EVAL_SEED_START + i}  EPE {e.mean():5.2f}  bad-3 {100 * (e > 3).mean():5.1f}%  "
+        print(f"pair {VALIDATION_SEED_START + i}  EPE {e.mean():5.2f}  bad-3 {100 * (e > 3).mean():5.1f}%  "
               f"median truth {np.median(g):5.1f}  " + "  ".join(cells))
 
 
@@ -64,7 +65,7 @@ def main() -> int:
           "EPE (px) over valid pixels, by ground-truth disparity band")
     print(f"{'set':10} {'scale':>5} {'EPE':>6} {'bias':>6} {'bad-3':>6} " + " ".join(f"{f'{lo:g}-{hi:g}':>8}" for lo, hi in BANDS))
     for water in SETS.values():
-        pairs = list(SyntheticStereo(args.pairs, *args.size, seed=EVAL_SEED_START, underwater=water))
+        pairs = list(SyntheticStereo(args.pairs, *args.size, seed=VALIDATION_SEED_START, underwater=water))
         for scale in (1.0, args.scale):
             signed, gt = [], []
             for s in pairs:
