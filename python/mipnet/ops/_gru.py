@@ -76,11 +76,12 @@ class _GruCandidate(Function):
     def backward(ctx, g):
         zr, hx, weight = ctx.saved_tensors
         need_zr, need_hx, need_w, need_b = ctx.needs_input_grad[:4]
+        need_gates = need_zr or need_hx
         rhx = _core.gru_reset_fwd(zr, hx)
-        drhx, dw, db = _core.conv2d_bwd(rhx, weight, g, (1, 1), ctx.padding, need_zr or need_hx, need_w, need_b,
+        drhx, dw, db = _core.conv2d_bwd(rhx, weight, g, (1, 1), ctx.padding, need_gates, need_w, need_b,
                                         winograd=_conv.WINOGRAD)
-        del rhx
-        dzr, dhx = _core.gru_reset_bwd(zr, hx, drhx) if need_zr or need_hx else (None, None)
+        del rhx  # freed before the gates' backward allocates their gradients
+        dzr, dhx = _core.gru_reset_bwd(zr, hx, drhx) if need_gates else (None, None)
         return dzr, dhx, dw, db, None
 
 
