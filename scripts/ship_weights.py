@@ -1,7 +1,7 @@
 """Ship a campaign run's best weights inside the package, as float16 with their provenance.
 
     python scripts/ship_weights.py ~/.cache/mipnet/train/s1-128x256 [--weights best.safetensors] [--out FILE]
-        [--validation table.json] [--init-provenance FILE]
+        [--validation table.json] [--init-provenance FILE] [--average EARLIER.safetensors ...]
 
 Writes ``python/mipnet/assets/mipnet_pretrained.safetensors`` with metadata: what it was trained on
 (data specs, generator version, steps, crop, batch, iterations), the exact commands
@@ -9,6 +9,9 @@ Writes ``python/mipnet/assets/mipnet_pretrained.safetensors`` with metadata: wha
 started with ``--init`` from earlier shipped weights carries their history: steps add up and their
 commands come first. A run started from weights that were never shipped (a finished cycle's last weights)
 names, with ``--init-provenance``, a file this script wrote for that run (``--out`` elsewhere).
+``--average`` ships the mean of the run's weights and earlier weights of the same lineage, each a file this
+script wrote (SWA over the ends of the campaign's one-cycle runs; validate the mean first, made by
+`scripts/average_weights.py`); the metadata names the steps of every weights averaged.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import argparse
 import json
 import os
 import sys
+import tempfile
 
 # an installed mipnet comes first; the checkout's own python/ is the fallback
 sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
@@ -28,7 +32,7 @@ CHECKOUT_PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "
                                    os.path.basename(PRETRAINED_PATH))
 from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
 from mipnet.training.log import TrainLog  # noqa: E402
-from mipnet.weights import load_safetensors  # noqa: E402
+from mipnet.weights import average_safetensors, load_safetensors, save_safetensors  # noqa: E402
 
 
 def main() -> int:
@@ -40,17 +44,21 @@ def main() -> int:
     p.add_argument("--out", default=CHECKOUT_PRETRAINED, help="where to write (default: the checkout's shipped file)")
     p.add_argument("--init-provenance", help="file written by this script for the weights the run started from, "
                                              "when those have no provenance of their own")
+    p.add_argument("--average", nargs="+", default=[], metavar="FILE",
+                   help="earlier weights of this lineage, each written by this script: ship the mean of all")
     args = p.parse_args()
     source = os.path.join(args.run, args.weights)
     _, meta = load_safetensors(source)
     step = int(meta["step"])
+    config = json.loads(meta["train_config"])
     records = TrainLog(os.path.join(args.run, "log.jsonl")).records()
     validation = next((r["val"] for r in records if "val" in r and r["step"] == step), None)
     sgbm = next((r["val_sgbm"] for r in records if "val_sgbm" in r), None)
+    setup = {"pairs": config["val_pairs"], "size": config["val_size"], "iters": config["val_iters"],
+             "seeds_from": VALIDATION_SEED_START}
     if args.validation:
         measured = json.load(open(args.validation))
-        validation, sgbm = measured["trained"], measured["sgbm"]
-    config = json.loads(meta["train_config"])
+        validation, sgbm, setup = measured["trained"], measured["sgbm"], measured.get("setup", setup)
     commands_path = os.path.join(args.run, "commands.txt")
     commands = open(commands_path).read().strip().splitlines() if os.path.exists(commands_path) else []
     settings = (f"on mipnet's generated scenes ({' '.join(config['data'])}), "
@@ -66,12 +74,24 @@ def main() -> int:
         total = int(init_meta["step"]) + step
         trained = f"{total} steps: {init_meta['trained']}; then {step} more from those weights {settings}"
         commands = json.loads(init_meta.get("commands", "[]")) + commands
-    export_pretrained(source, args.out, trained=trained, step=str(total), commands=commands, validation=validation,
-                      validation_sgbm=sgbm, validation_setup={"pairs": config["val_pairs"], "size": config["val_size"],
-                                                             "iters": config["val_iters"],
-                                                             "seeds_from": VALIDATION_SEED_START})
+    extra = {}
+    if args.average:
+        steps = [int(load_safetensors(f)[1]["step"]) for f in args.average]
+        if max(steps) >= total:
+            raise SystemExit(f"--average: weights of {max(steps)} steps are not earlier than this run's {total}")
+        trained = (f"the mean of the weights after {', '.join(map(str, steps))} and {total} steps of one lineage "
+                   f"(SWA over the ends of one-cycle runs); the last: {trained}")
+        extra["averaged_steps"] = steps + [total]
+    with tempfile.TemporaryDirectory() as scratch:
+        shipped = source
+        if args.average:
+            shipped = os.path.join(scratch, "mean.safetensors")
+            save_safetensors(shipped, average_safetensors([source] + args.average), meta)
+        export_pretrained(shipped, args.out, trained=trained, step=str(total), commands=commands, validation=validation,
+                          validation_sgbm=sgbm, validation_setup=setup, **extra)
     print(f"wrote {args.out} ({os.path.getsize(args.out) / 2**20:.1f} MiB) from {source} "
-          f"(step {step} of the run, {total} in all)")
+          f"(step {step} of the run, {total} in all"
+          f"{', averaged with ' + ' '.join(args.average) if args.average else ''})")
     return 0
 
 

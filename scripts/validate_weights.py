@@ -4,8 +4,8 @@ Motorcycle pair and, once fetched (`mipnet fetch cones`), the real Middlebury Co
 
     python scripts/validate_weights.py RUN/model.safetensors --out table.json [--size 256 320] [--pairs 8] [--no-untrained]
 
-The JSON (``{"trained": ..., "untrained": ..., "sgbm": ...}``) is what ``scripts/ship_weights.py
---validation`` records in the shipped file.
+The JSON (``{"trained": ..., "untrained": ..., "sgbm": ..., "setup": ...}``) is what ``scripts/ship_weights.py
+--validation`` records in the shipped file (``setup``: pairs per set, size, iterations, first pair seed).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import time
 sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
 import mipnet  # noqa: E402
+from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
 from mipnet.training.validation import format_validation, validate_model, validate_sgbm, validation_sets  # noqa: E402
 
 
@@ -50,6 +51,8 @@ def main() -> int:
         print(f"{name} ({time.perf_counter() - start:.0f} s)\n" + format_validation(None, tables[name]))
     tables["sgbm"] = validate_sgbm(sets)
     print("sgbm\n" + format_validation(None, tables["sgbm"]))
+    tables["setup"] = {"pairs": args.pairs, "size": list(args.size), "iters": list(args.iters),
+                       "seeds_from": VALIDATION_SEED_START}
     with open(args.out, "w") as f:
         json.dump(tables, f, indent=1)
     return 0

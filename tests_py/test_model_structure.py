@@ -91,6 +91,28 @@ def test_safetensors_files_match_the_reference_library(tmp_path):
     assert all(np.array_equal(ours[k], v) and ours[k].shape == v.shape for k, v in arrays.items())
 
 
+def test_average_of_weights_files_is_their_weighted_mean(tmp_path):
+    from mipnet.weights import average_safetensors, save_safetensors
+
+    rng = np.random.default_rng(0)
+    files = []
+    for k in range(3):
+        files.append(tmp_path / f"w{k}.safetensors")
+        save_safetensors(files[-1], {"w": rng.standard_normal((4, 3)).astype(np.float16 if k == 0 else np.float32),
+                                     "count": np.array([k], np.int64)})
+    tensors = [mipnet.weights.load_safetensors(f)[0] for f in files]
+    mean = average_safetensors(files, [1.0, 2.0, 1.0])
+    expected = (tensors[0]["w"].astype(np.float64) + 2 * tensors[1]["w"] + tensors[2]["w"]) / 4
+    assert mean["w"].dtype == np.float32 and np.allclose(mean["w"], expected, rtol=1e-6, atol=1e-7)
+    assert np.array_equal(mean["count"], [0])  # not a float: the first file's
+    assert np.array_equal(average_safetensors(files[:1])["w"], tensors[0]["w"].astype(np.float32))
+    save_safetensors(tmp_path / "other.safetensors", {"w": np.zeros((3, 4), np.float32), "count": np.zeros(1, np.int64)})
+    with pytest.raises(mipnet.errors.FormatError, match=r"w is \(3, 4\) in .*other.safetensors"):
+        average_safetensors([files[1], tmp_path / "other.safetensors"])
+    with pytest.raises(mipnet.errors.FormatError, match="one non-negative weight per file"):
+        average_safetensors(files, [1.0, -1.0, 1.0])
+
+
 def test_corrupt_weights_file_raises_format_error(tmp_path):
     path = tmp_path / "bad.safetensors"
     path.write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{not json")

@@ -249,10 +249,24 @@ def test_shipped_weights_carry_the_history_of_their_init(tmp_path):
     shipped_second = str(tmp_path / "second.safetensors")
     subprocess.run([sys.executable, ship, second, "--weights", "model.safetensors", "--out", shipped_second], check=True)
     from mipnet.weights import load_safetensors
-    _, meta_first = load_safetensors(shipped_first)
+    tensors_first, meta_first = load_safetensors(shipped_first)
     tensors, meta = load_safetensors(shipped_second)
     assert meta_first["step"] == "2" and meta_first["trained"].startswith("2 steps from scratch")
     assert meta["step"] == "3"
     assert meta["trained"].startswith("3 steps: " + meta_first["trained"] + "; then 1 more from those weights")
     assert all(v.dtype == np.float16 for v in tensors.values() if v.dtype.kind == "f")
     assert mipnet.load(shipped_second).state_dict().keys() == _weights(second).keys()
+    # --average: the mean of this run's weights and earlier shipped ones of its lineage, named in the metadata
+    shipped_mean = str(tmp_path / "mean.safetensors")
+    subprocess.run([sys.executable, ship, second, "--weights", "model.safetensors", "--out", shipped_mean,
+                    "--average", shipped_first], check=True)
+    mean, meta_mean = load_safetensors(shipped_mean)
+    assert meta_mean["step"] == "3" and json.loads(meta_mean["averaged_steps"]) == [2, 3]
+    assert meta_mean["trained"].startswith("the mean of the weights after 2 and 3 steps")
+    last, _ = load_safetensors(os.path.join(second, "model.safetensors"))
+    name = "encoder.stem.conv.weight"
+    expected = (tensors_first[name].astype(np.float64) + last[name]) / 2
+    assert np.allclose(mean[name], expected, rtol=2e-3, atol=1e-4)  # float16 of the float32 mean
+    failed = subprocess.run([sys.executable, ship, first, "--weights", "model.safetensors", "--out", shipped_mean,
+                             "--average", shipped_second], capture_output=True, text=True)
+    assert failed.returncode != 0 and "not earlier" in failed.stderr

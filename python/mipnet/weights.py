@@ -18,7 +18,7 @@ import numpy as np
 from ._fileutil import atomic_write
 from .errors import FormatError
 
-__all__ = ["save_safetensors", "load_safetensors"]
+__all__ = ["save_safetensors", "load_safetensors", "average_safetensors"]
 
 _DTYPES = {"F32": np.float32, "F64": np.float64, "F16": np.float16, "I64": np.int64, "I32": np.int32,
            "I16": np.int16, "I8": np.int8, "U8": np.uint8, "BOOL": np.bool_}
@@ -46,6 +46,36 @@ def save_safetensors(path: str | os.PathLike, tensors: Mapping[str, Any], metada
         f.write(head)
         for raw in blobs:
             f.write(raw)
+
+
+def average_safetensors(paths: list[str | os.PathLike], weights: list[float] | None = None) -> dict[str, np.ndarray]:
+    """The weighted mean of several weights files of one network, tensor by tensor (a "model soup",
+    Wortsman et al. 2022; SWA over the ends of learning-rate cycles, Izmailov et al. 2018): weights fine-tuned
+    from a common ancestor share a basin, where their mean is often better than each.
+
+    Floating tensors become sum_k w_k * t_k in float64, returned as float32 (``weights`` default equal, scaled
+    to sum to one); other tensors are taken from the first file. Every file must hold the same names and shapes.
+    """
+    if not paths:
+        raise FormatError("average_safetensors: no files given")
+    w = np.ones(len(paths)) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (len(paths),) or not np.all(np.isfinite(w)) or w.min() < 0 or w.sum() <= 0:
+        raise FormatError(f"average_safetensors: need one non-negative weight per file ({len(paths)}), "
+                          f"not all zero, got {weights}")
+    w = w / w.sum()
+    states = [load_safetensors(p)[0] for p in paths]
+    first = states[0]
+    for path, state in zip(paths[1:], states[1:]):
+        if state.keys() != first.keys():
+            raise FormatError(f"average_safetensors: {os.fspath(path)} holds other tensors than "
+                              f"{os.fspath(paths[0])}: {sorted(state.keys() ^ first.keys())[:5]}")
+        for name, value in state.items():
+            if value.shape != first[name].shape:
+                raise FormatError(f"average_safetensors: {name} is {value.shape} in {os.fspath(path)}, "
+                                  f"{first[name].shape} in {os.fspath(paths[0])}")
+    return {name: (sum(wk * s[name].astype(np.float64) for wk, s in zip(w, states)).astype(np.float32)
+                   if value.dtype.kind == "f" else value)
+            for name, value in first.items()}
 
 
 #: The largest JSON header accepted (the reference implementation's limit, 100 MB).
