@@ -152,6 +152,8 @@ def test_config_precedence_preset_file_flags(tmp_path):
     ({"crop": (50, 96)}, "multiples of 16"),
     ({"steps": 0}, "steps must be positive"),
     ({"veil": 1.5}, "veil is a probability"),
+    ({"spatial_scale": (0.4, -0.2)}, "low <= high"),
+    ({"spatial_scale": (0.1,)}, "spatial_scale must be two finite numbers"),
 ])
 def test_bad_settings_raise(settings, message):
     with pytest.raises(ArgumentError, match=message):
@@ -165,6 +167,20 @@ def test_veil_setting_reaches_every_augmentor_only_with_augment():
     assert [a.veil_prob for a in augmentors] == [0.3, 0.3]
     _, plain = build_dataset(resolve_config("cpu", overrides={"veil": 0.3, "augment": False, "data": ["synthetic"]}))
     assert plain[0].veil_prob == 0.0
+
+
+def test_spatial_scale_reaches_every_augmentor_and_survives_a_resume():
+    from mipnet.training.config import TrainConfig
+    from mipnet.training.fit import build_dataset
+
+    config = resolve_config("cpu", overrides={"spatial_scale": (-0.3, 0.1), "data": ["synthetic", "scenes"]})
+    _, augmentors = build_dataset(config)
+    assert [a.scale_range for a in augmentors] == [(-0.3, 0.1), (-0.3, 0.1)]
+    assert TrainConfig.from_json(config.to_json()).spatial_scale == (-0.3, 0.1)
+    # a run written before the setting existed resumes with RAFT-Stereo's range
+    old = json.loads(config.to_json())
+    del old["spatial_scale"]
+    assert TrainConfig.from_json(json.dumps(old)).spatial_scale == (-0.2, 0.4)
 
 
 def test_veiled_validation_set_fades_the_lower_rows_and_stays_out_of_the_mean():

@@ -51,6 +51,12 @@ class TrainConfig:
         Keep BatchNorm in eval mode (fine-tuning).
     augment : bool
         Spec c.3 augmentation (photometric, eraser, scale/stretch, y-jitter); False: crop only.
+    spatial_scale : (float, float)
+        log2 range of the scale augmentation, s = 2 ** U(lo, hi) (RAFT-Stereo's ``--spatial_scale``;
+        default its SceneFlow range (-0.2, 0.4)). Generated pairs are drawn larger than the crop
+        (:data:`mipnet.training.fit.GENERATED_MARGIN`) with disparities that grow with the drawn width,
+        so on them the crop already zooms in by about that margin: (-0.3, 0.1) keeps their disparities
+        near those of a pair drawn at the crop's size. Ignored without ``augment``.
     veil : float
         Probability of the row veil of :class:`mipnet.training.StereoAugmentor` (``veil_prob``), a
         depth-independent fade towards a pale colour; 0 (default): off. Ignored without ``augment``.
@@ -83,6 +89,7 @@ class TrainConfig:
     max_disp: float = 700.0
     freeze_bn: bool = False
     augment: bool = True
+    spatial_scale: tuple[float, float] = (-0.2, 0.4)
     veil: float = 0.0
     data: list[str] = dataclasses.field(default_factory=lambda: list(DEFAULT_DATA))
     init: str | None = None
@@ -100,6 +107,7 @@ class TrainConfig:
         self.iters = _pair(self.iters, "iters")
         self.val_size = _pair(self.val_size, "val_size")
         self.val_iters = _pair(self.val_iters, "val_iters")
+        self.spatial_scale = _range(self.spatial_scale, "spatial_scale")
         self.data = [self.data] if isinstance(self.data, str) else list(self.data)
         for name in ("steps", "batch_size", "seed", "val_every", "val_pairs", "checkpoint_every", "workers"):
             value = getattr(self, name)
@@ -142,6 +150,17 @@ class TrainConfig:
     @classmethod
     def from_json(cls, text: str) -> "TrainConfig":
         return cls(**json.loads(text))
+
+
+def _range(value: Any, name: str) -> tuple[float, float]:
+    try:
+        low, high = value
+    except (TypeError, ValueError):
+        low = high = None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in (low, high)) \
+            or low > high:
+        raise ArgumentError(f"TrainConfig: {name} must be two finite numbers (low, high) with low <= high, got {value!r}")
+    return float(low), float(high)
 
 
 def _pair(value: Any, name: str) -> tuple[int, int]:

@@ -58,8 +58,10 @@ def build_dataset(config: TrainConfig) -> tuple[Mixture, list]:
     specs = [parse_spec(text) for text in config.data]
     size = _generated_size(config.crop)
     sources = [open_spec(spec, size, seed=0, count=EVAL_SEED_START) for spec in specs]
-    veil = {"veil_prob": config.veil} if config.augment and config.veil > 0 else {}
-    augmentors = [make_augmentor(config.crop, sparse=is_sparse(spec), augment=config.augment, **veil) for spec in specs]
+    options = {"scale_range": config.spatial_scale}
+    if config.augment and config.veil > 0:
+        options["veil_prob"] = config.veil
+    augmentors = [make_augmentor(config.crop, sparse=is_sparse(spec), augment=config.augment, **options) for spec in specs]
     return Mixture(sources, [s.weight for s in specs], EVAL_SEED_START, seed=config.seed), augmentors
 
 
