@@ -109,7 +109,7 @@ def test_average_of_weights_files_is_their_weighted_mean(tmp_path):
     save_safetensors(tmp_path / "other.safetensors", {"w": np.zeros((3, 4), np.float32), "count": np.zeros(1, np.int64)})
     with pytest.raises(mipnet.errors.FormatError, match=r"w is \(3, 4\) in .*other.safetensors"):
         average_safetensors([files[1], tmp_path / "other.safetensors"])
-    with pytest.raises(mipnet.errors.FormatError, match="one non-negative weight per file"):
+    with pytest.raises(mipnet.errors.ArgumentError, match="one non-negative weight per file"):
         average_safetensors(files, [1.0, -1.0, 1.0])
 
 

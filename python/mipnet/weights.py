@@ -16,7 +16,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ._fileutil import atomic_write
-from .errors import FormatError
+from .errors import ArgumentError, FormatError
 
 __all__ = ["save_safetensors", "load_safetensors", "average_safetensors"]
 
@@ -57,10 +57,10 @@ def average_safetensors(paths: list[str | os.PathLike], weights: list[float] | N
     to sum to one); other tensors are taken from the first file. Every file must hold the same names and shapes.
     """
     if not paths:
-        raise FormatError("average_safetensors: no files given")
+        raise ArgumentError("average_safetensors: no files given")
     w = np.ones(len(paths)) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != (len(paths),) or not np.all(np.isfinite(w)) or w.min() < 0 or w.sum() <= 0:
-        raise FormatError(f"average_safetensors: need one non-negative weight per file ({len(paths)}), "
+        raise ArgumentError(f"average_safetensors: need one non-negative weight per file ({len(paths)}), "
                           f"not all zero, got {weights}")
     w = w / w.sum()
     states = [load_safetensors(p)[0] for p in paths]
