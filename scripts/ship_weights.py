@@ -20,7 +20,6 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 
 # an installed mipnet comes first; the checkout's own python/ is the fallback
 sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
@@ -32,7 +31,7 @@ CHECKOUT_PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "
                                    os.path.basename(PRETRAINED_PATH))
 from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
 from mipnet.training.log import TrainLog  # noqa: E402
-from mipnet.weights import average_safetensors, load_safetensors, save_safetensors  # noqa: E402
+from mipnet.weights import average_safetensors, load_safetensors  # noqa: E402
 
 
 def main() -> int:
@@ -82,13 +81,9 @@ def main() -> int:
         trained = (f"the mean of the weights after {', '.join(map(str, steps))} and {total} steps of one lineage "
                    f"(SWA over the ends of one-cycle runs); the last: {trained}")
         extra["averaged_steps"] = steps + [total]
-    with tempfile.TemporaryDirectory() as scratch:
-        shipped = source
-        if args.average:
-            shipped = os.path.join(scratch, "mean.safetensors")
-            save_safetensors(shipped, average_safetensors([source] + args.average), meta)
-        export_pretrained(shipped, args.out, trained=trained, step=str(total), commands=commands, validation=validation,
-                          validation_sgbm=sgbm, validation_setup=setup, **extra)
+    mean = average_safetensors([source] + args.average) if args.average else None
+    export_pretrained(source, args.out, tensors=mean, trained=trained, step=str(total), commands=commands,
+                      validation=validation, validation_sgbm=sgbm, validation_setup=setup, **extra)
     print(f"wrote {args.out} ({os.path.getsize(args.out) / 2**20:.1f} MiB) from {source} "
           f"(step {step} of the run, {total} in all"
           f"{', averaged with ' + ' '.join(args.average) if args.average else ''})")

@@ -50,10 +50,13 @@ def pretrained_info() -> dict:
     return out
 
 
-def export_pretrained(weights: str, path: str | os.PathLike = PRETRAINED_PATH, **metadata) -> str:
+def export_pretrained(weights: str, path: str | os.PathLike = PRETRAINED_PATH, tensors: dict | None = None,
+                      **metadata) -> str:
     """Writes ``weights`` (a run's ``best.safetensors``) as float16 with its metadata plus ``metadata``
-    (JSON-encoded unless strings); returns the path. Values outside float16's range are an error."""
-    tensors, meta = load_safetensors(weights)
+    (JSON-encoded unless strings); returns the path. ``tensors``: write these instead of the file's own (an
+    average of several files), still with the file's metadata. Values outside float16's range are an error."""
+    own, meta = load_safetensors(weights)
+    tensors = own if tensors is None else tensors
     half = {}
     for name, value in tensors.items():
         if value.dtype.kind == "f":
