@@ -14,6 +14,7 @@ from mipnet.data.loader import DataLoader
 from mipnet.errors import ArgumentError, DTypeError, ShapeError
 from mipnet.training.augment import (
     AugmentParams,
+    NoiseParams,
     SparseStereoAugmentor,
     StereoAugmentor,
     VeilParams,
@@ -451,6 +452,57 @@ def test_veil_keeps_the_pair_consistent_for_any_depth():
         np.testing.assert_array_equal(left_rows, right_rows)
         changed += int((out["left"] != texture[y0:y0 + 64, x0:x0 + 96]).any())
     assert changed >= 5
+
+
+def test_noise_is_drawn_last_and_changes_no_other_draw():
+    """noise_prob > 0 adds its draw after every other (the veil's too), so runs without it see the old augmentation."""
+    plain, noisy = StereoAugmentor((80, 120), veil_prob=0.5), StereoAugmentor((80, 120), veil_prob=0.5, noise_prob=1.0)
+    for seed in range(10):
+        without, with_noise = plain.draw((120, 180), _rng(seed)), noisy.draw((120, 180), _rng(seed))
+        assert without.noise is None and with_noise.noise is not None
+        assert dataclasses.replace(with_noise, noise=None) == without
+
+
+def test_noise_draws_follow_the_docstring():
+    aug = StereoAugmentor((80, 120), noise_prob=0.5)
+    drawn = [n for n in (aug.draw((200, 300), _rng(seed)).noise for seed in range(400)) if n is not None]
+    assert 0.4 < len(drawn) / 400 < 0.6
+    assert 0.35 < np.mean([n.floor == 1.0 for n in drawn]) < 0.65
+    for n in drawn:
+        assert 0.1 <= n.exposure <= 1.0 and 50.0 <= n.full_well <= 3000.0 and 0.001 <= n.read_noise <= 0.015
+        assert n.floor == 1.0 or 0.05 <= n.floor <= 0.5
+        assert 0.3 <= n.radius <= 0.8 and 0 <= n.centre[0] <= 80 and 0 <= n.centre[1] <= 120
+
+
+def test_noise_is_shot_and_read_noise_around_the_dimmed_image():
+    """On a flat grey crop under uniform light, each view's mean is the dimmed value and its variance
+    the Poisson variance plus the read noise's; the two views' noise is independent."""
+    linear = 0.2
+    grey = np.full((200, 200, 3), np.rint(255 * (1.055 * linear ** (1 / 2.4) - 0.055)), np.uint8)
+    noise = NoiseParams(exposure=0.5, full_well=400.0, read_noise=0.01, floor=1.0, centre=(0.0, 0.0), radius=0.5,
+                        seed=7)
+    left, right = (noise.apply(grey, view).astype(np.float64) / 255 for view in (0, 1))
+    decode = [np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4) for v in (left, right)]
+    signal = 0.2 * 0.5
+    # Poisson(s F) / F has variance s / F; the read noise adds its square
+    expected_var = signal / 400.0 + 0.01**2
+    for view in decode:
+        assert abs(view.mean() - signal) < 0.01 * signal + 0.002
+        assert 0.8 < view.var() / expected_var < 1.25
+    assert abs(np.corrcoef(decode[0].ravel(), decode[1].ravel())[0, 1]) < 0.03
+    np.testing.assert_array_equal(noise.apply(grey, 0), noise.apply(grey, 0))
+
+
+def test_noise_spot_light_is_brightest_at_its_centre_and_the_same_in_both_views():
+    noise = NoiseParams(exposure=1.0, full_well=1e9, read_noise=0.0, floor=0.1, centre=(10.0, 90.0), radius=0.4,
+                        seed=1)
+    light = noise.light(40, 120)[..., 0]
+    assert light.max() == light[10, 90] == pytest.approx(1.0)
+    assert light.min() >= 0.1 and light[39, 0] < 0.5
+    image = np.full((40, 120, 3), 180, np.uint8)
+    # with no noise to speak of, both views are the same dimmed image (up to rounding)
+    np.testing.assert_allclose(noise.apply(image, 0), noise.apply(image, 1), atol=1)
+    assert noise.apply(image, 0)[39, 0].mean() < noise.apply(image, 0)[10, 90].mean()
 
 
 @pytest.mark.parametrize("extra", [0, 1, 2, 3, 4, 5])

@@ -152,6 +152,7 @@ def test_config_precedence_preset_file_flags(tmp_path):
     ({"crop": (50, 96)}, "multiples of 16"),
     ({"steps": 0}, "steps must be positive"),
     ({"veil": 1.5}, "veil is a probability"),
+    ({"noise": -0.1}, "noise is a probability"),
     ({"spatial_scale": (0.4, -0.2)}, "low <= high"),
     ({"spatial_scale": (0.1,)}, "spatial_scale must be two finite numbers"),
 ])
@@ -160,13 +161,20 @@ def test_bad_settings_raise(settings, message):
         resolve_config("cpu", overrides=settings)
 
 
-def test_veil_setting_reaches_every_augmentor_only_with_augment():
+@pytest.mark.parametrize("setting, option", [("veil", "veil_prob"), ("noise", "noise_prob")])
+def test_augmentation_probability_reaches_every_augmentor_only_with_augment(setting, option):
+    from mipnet.training.config import TrainConfig
     from mipnet.training.fit import build_dataset
 
-    _, augmentors = build_dataset(resolve_config("cpu", overrides={"veil": 0.3, "data": ["synthetic", "scenes"]}))
-    assert [a.veil_prob for a in augmentors] == [0.3, 0.3]
-    _, plain = build_dataset(resolve_config("cpu", overrides={"veil": 0.3, "augment": False, "data": ["synthetic"]}))
-    assert plain[0].veil_prob == 0.0
+    config = resolve_config("cpu", overrides={setting: 0.3, "data": ["synthetic", "scenes"]})
+    _, augmentors = build_dataset(config)
+    assert [getattr(a, option) for a in augmentors] == [0.3, 0.3]
+    _, plain = build_dataset(resolve_config("cpu", overrides={setting: 0.3, "augment": False, "data": ["synthetic"]}))
+    assert getattr(plain[0], option) == 0.0
+    # a run written before the setting existed resumes without the augmentation
+    old = json.loads(config.to_json())
+    del old[setting]
+    assert getattr(TrainConfig.from_json(json.dumps(old)), setting) == 0.0
 
 
 def test_spatial_scale_reaches_every_augmentor_and_survives_a_resume():

@@ -17,7 +17,14 @@ from the ``numpy.random.Generator`` it is given (the loader seeds one per sample
 5. optionally (``veil_prob``, off by default, not in RAFT) a veil: a band of rows faded towards one
    pale colour in both views alike. Rows are epipolar lines, so the veil covers the same scene points
    in both views whatever their depth; it is there so that "pale and weakly textured" stops meaning
-   "far" (as it does under water, where haze grows with range), e.g. a pale near floor in air.
+   "far" (as it does under water, where haze grows with range), e.g. a pale near floor in air;
+6. optionally (``noise_prob``, off by default, not in RAFT) dim light and sensor noise on the crop: the
+   linear image under a random illumination (uniform, or a spot light that fades towards the edges,
+   the same in both views) and a random exposure, then Poisson shot noise and Gaussian read noise drawn
+   independently for each view, as :func:`mipnet.underwater.degrade`'s sensor. Dark, noisy regions then
+   occur at every depth and on every kind of scene, so the network learns to match through the noise of
+   a low-light image (its texture survives only when averaged over many pixels) instead of reading
+   "dark and noisy" as a depth.
 
 Speed: every draw is made before any pixel is touched, so only the source window that the crop
 reads is coloured, occluded and resampled, which gives exactly the pixels of "whole image, then
@@ -38,8 +45,9 @@ import numpy as np
 from PIL import Image, ImageEnhance, ImageStat
 
 from ..errors import ArgumentError, DTypeError, ShapeError
+from ..underwater import linear_to_srgb, srgb_to_linear
 
-__all__ = ["AugmentParams", "ColorParams", "VeilParams", "StereoAugmentor", "SparseStereoAugmentor", "make_augmentor"]
+__all__ = ["AugmentParams", "ColorParams", "VeilParams", "NoiseParams", "StereoAugmentor", "SparseStereoAugmentor", "make_augmentor"]
 
 #: Occluder sides are scaled by min(1, shorter image side / this) (RAFT's 50-99 px suit >= 384 px images).
 OCCLUDER_REFERENCE_SIDE = 384
@@ -100,6 +108,47 @@ class VeilParams:
 
 
 @dataclass(frozen=True)
+class NoiseParams:
+    """Dim light and sensor noise on the output crop (step 6), both views alike but for the noise draws.
+
+    Linear output = ``Poisson(L * light(y, x) * exposure * full_well) / full_well + N(0, read_noise)``,
+    with L the crop's linear (sRGB-decoded) value; ``light = floor + (1 - floor) exp(-(r / radius)^2)``,
+    r the distance from ``centre`` (crop rows, columns) over the crop's diagonal (``floor`` = 1: uniform).
+    The noise of view v (0 left, 1 right) comes from ``numpy.random.default_rng([seed, v])``.
+    """
+
+    exposure: float
+    full_well: float
+    read_noise: float
+    floor: float
+    centre: tuple[float, float]
+    radius: float
+    seed: int
+
+    def light(self, height: int, width: int) -> np.ndarray:
+        """The illumination over an (height, width) crop, shape (height, width, 1)."""
+        rows = np.arange(height, dtype=np.float32)[:, None] - self.centre[0]
+        cols = np.arange(width, dtype=np.float32)[None, :] - self.centre[1]
+        # squared distance to the centre as a fraction of the diagonal
+        r2 = (rows**2 + cols**2) / np.float32(height**2 + width**2)
+        spot = np.exp(-r2 / np.float32(self.radius**2))
+        return (self.floor + (1.0 - self.floor) * spot)[..., None].astype(np.float32)
+
+    def apply(self, image: np.ndarray, view: int) -> np.ndarray:
+        """The dimmed, noisy copy of crop ``image`` as seen by view ``view`` (0 left, 1 right).
+
+        Shapes
+        ------
+        image: (h, w, 3) uint8 -> (h, w, 3) uint8.
+        """
+        rng = np.random.default_rng([self.seed, view])
+        signal = srgb_to_linear(image) * self.light(*image.shape[:2]) * np.float32(self.exposure * self.full_well)
+        electrons = rng.poisson(signal).astype(np.float32)
+        noisy = electrons / np.float32(self.full_well) + rng.normal(0.0, self.read_noise, image.shape).astype(np.float32)
+        return linear_to_srgb(noisy)
+
+
+@dataclass(frozen=True)
 class AugmentParams:
     """Every random draw of one augmentation, in the input image's coordinates unless stated.
 
@@ -121,6 +170,8 @@ class AugmentParams:
         The right crop starts at row ``y0 + delta`` (y-jitter).
     veil : VeilParams or None
         Step 5, in input rows; None: no veil.
+    noise : NoiseParams or None
+        Step 6, in crop coordinates; None: no dimming or noise.
     """
 
     color: tuple[ColorParams, ...]
@@ -131,6 +182,7 @@ class AugmentParams:
     origin: tuple[int, int]
     delta: int
     veil: VeilParams | None = None
+    noise: NoiseParams | None = None
 
 
 def _resize_taps(size_in: int, scale: float, start: int, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -377,6 +429,11 @@ class StereoAugmentor:
         rows, starting anywhere from 30% above the image to 90% down it, with soft edges of 5-30% of
         the height, faded by 50-92% towards a grey of 35-95% with a slight tint. No draw is made
         when it is 0, so runs without it see exactly the augmentation they saw before it existed.
+    noise_prob : float
+        Probability of dim light and sensor noise (step 6; default 0, RAFT has none): exposure
+        logU(0.1, 1), full well logU(50, 3000) electrons, read noise logU(0.001, 0.015) of full scale;
+        half of the time uniform light, else a spot centred anywhere in the crop with radius
+        U(0.3, 0.8) of the diagonal over a floor logU(0.05, 0.5). No draw is made when it is 0.
 
     Notes
     -----
@@ -409,7 +466,7 @@ class StereoAugmentor:
                  patch_prob: float = 0.5, spatial: bool = True, spatial_prob: float = 1.0,
                  scale_range: tuple[float, float] = (-0.2, 0.4), stretch_prob: float = 0.8,
                  max_stretch: float = 0.2, yjitter: int = 2, max_disparity: float | None = 512.0,
-                 veil_prob: float = 0.0):
+                 veil_prob: float = 0.0, noise_prob: float = 0.0):
         owner = type(self).__name__
         self.crop = _check_pair(crop, "crop", owner, positive=True)
         self.photometric = bool(photometric)
@@ -442,11 +499,12 @@ class StereoAugmentor:
             raise ArgumentError(f"{owner}: max_disparity must be > 0 or None, got {max_disparity}")
         self.max_disparity = None if max_disparity is None else float(max_disparity)
         self.veil_prob = _check_prob(veil_prob, "veil_prob", owner)
+        self.noise_prob = _check_prob(noise_prob, "noise_prob", owner)
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(crop={self.crop}, photometric={self.photometric}, spatial={self.spatial}, "
                 f"eraser_prob={self.eraser_prob}, patch_prob={self.patch_prob}, yjitter={self.yjitter}, "
-                f"veil_prob={self.veil_prob})")
+                f"veil_prob={self.veil_prob}, noise_prob={self.noise_prob})")
 
     def __call__(self, sample: dict, rng: np.random.Generator) -> dict:
         """Augment one sample with draws from ``rng`` (``apply(sample, draw(shape, rng))``).
@@ -494,8 +552,23 @@ class StereoAugmentor:
         erase, patch = self._draw_occluders(height, width, rng)
         scale, size, origin, delta = self._draw_geometry(height, width, rng)
         veil = self._draw_veil(height, rng) if self.veil_prob > 0 else None
+        noise = self._draw_noise(rng) if self.noise_prob > 0 else None
         return AugmentParams(color=color, erase=erase, patch=patch, scale=scale, size=size, origin=origin, delta=delta,
-                             veil=veil)
+                             veil=veil, noise=noise)
+
+    def _draw_noise(self, rng: np.random.Generator) -> NoiseParams | None:
+        if rng.random() >= self.noise_prob:
+            return None
+
+        def log_uniform(low: float, high: float) -> float:
+            return float(np.exp(rng.uniform(np.log(low), np.log(high))))
+
+        exposure, full_well, read_noise = log_uniform(0.1, 1.0), log_uniform(50.0, 3000.0), log_uniform(0.001, 0.015)
+        uniform = rng.random() < 0.5
+        floor, radius = (1.0 if uniform else log_uniform(0.05, 0.5)), float(rng.uniform(0.3, 0.8))
+        centre = (float(rng.uniform(0, self.crop[0])), float(rng.uniform(0, self.crop[1])))
+        return NoiseParams(exposure=exposure, full_well=full_well, read_noise=read_noise, floor=floor, centre=centre,
+                           radius=radius, seed=int(rng.integers(2**62)))
 
     def _draw_veil(self, height: int, rng: np.random.Generator) -> VeilParams | None:
         if rng.random() >= self.veil_prob:
@@ -630,6 +703,8 @@ class StereoAugmentor:
         out["disparity"], out["valid"] = self._resize_ground_truth(disparity, valid, rows, cols, params)
         if self.max_disparity is not None:
             out["valid"] &= np.abs(out["disparity"]) < self.max_disparity
+        if params.noise is not None:
+            out["left"], out["right"] = params.noise.apply(out["left"], 0), params.noise.apply(out["right"], 1)
         return out
 
     @staticmethod

@@ -15,7 +15,7 @@ from .config import PRESETS, load_config_file, resolve_config
 
 # flags that map one-to-one onto TrainConfig fields
 _FIELDS = ("steps", "schedule_steps", "batch_size", "crop", "iters", "lr", "init", "seed", "val_every", "val_pairs",
-           "val_size", "val_data", "checkpoint_every", "workers", "data", "veil",
+           "val_size", "val_data", "checkpoint_every", "workers", "data", "veil", "noise",
            "spatial_scale")
 
 
@@ -46,6 +46,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--spatial-scale", type=float, nargs=2, metavar=("LO", "HI"),
                    help="log2 range of the scale augmentation (default -0.2 0.4, RAFT-Stereo's)")
     p.add_argument("--veil", type=float, metavar="P", help="probability of the row veil augmentation (default 0)")
+    p.add_argument("--noise", type=float, metavar="P",
+                   help="probability of the dim-light and sensor-noise augmentation (default 0)")
     p.add_argument("--freeze-bn", dest="freeze_bn", action="store_true", default=None)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

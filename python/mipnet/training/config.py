@@ -60,6 +60,10 @@ class TrainConfig:
     veil : float
         Probability of the row veil of :class:`mipnet.training.StereoAugmentor` (``veil_prob``), a
         depth-independent fade towards a pale colour; 0 (default): off. Ignored without ``augment``.
+    noise : float
+        Probability of dim light and sensor noise on a training crop (``noise_prob`` of
+        :class:`mipnet.training.StereoAugmentor`), independent of depth; 0 (default): off. Ignored
+        without ``augment``.
     data : list of str
         Data specs (see :mod:`mipnet.training.data_spec`), e.g. ``["scenes:0.7", "kitti2015:/data/kitti:0.3"]``.
     init : str or None
@@ -91,6 +95,7 @@ class TrainConfig:
     augment: bool = True
     spatial_scale: tuple[float, float] = (-0.2, 0.4)
     veil: float = 0.0
+    noise: float = 0.0
     data: list[str] = dataclasses.field(default_factory=lambda: list(DEFAULT_DATA))
     init: str | None = None
     seed: int = 1234
@@ -113,7 +118,7 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool):
                 raise ArgumentError(f"TrainConfig: {name} must be an integer, got {value!r}")
-        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp", "veil"):
+        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp", "veil", "noise"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
                 raise ArgumentError(f"TrainConfig: {name} must be a finite number, got {value!r}")
@@ -137,8 +142,9 @@ class TrainConfig:
             raise ArgumentError(f"TrainConfig: crop must be multiples of 16 and >= 32, got {list(self.crop)}")
         if self.iters[0] < 1 or self.iters[1] < 0:
             raise ArgumentError(f"TrainConfig: iters needs N16 >= 1 and N4 >= 0, got {list(self.iters)}")
-        if not 0.0 <= self.veil <= 1.0:
-            raise ArgumentError(f"TrainConfig: veil is a probability in [0, 1], got {self.veil}")
+        for name in ("veil", "noise"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ArgumentError(f"TrainConfig: {name} is a probability in [0, 1], got {getattr(self, name)}")
         if self.val_every < 0 or self.val_pairs < 0 or self.workers < 0:
             raise ArgumentError("TrainConfig: val_every, val_pairs and workers must be >= 0")
         if not self.data:

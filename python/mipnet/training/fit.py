@@ -61,6 +61,8 @@ def build_dataset(config: TrainConfig) -> tuple[Mixture, list]:
     options = {"scale_range": config.spatial_scale}
     if config.augment and config.veil > 0:
         options["veil_prob"] = config.veil
+    if config.augment and config.noise > 0:
+        options["noise_prob"] = config.noise
     augmentors = [make_augmentor(config.crop, sparse=is_sparse(spec), augment=config.augment, **options) for spec in specs]
     return Mixture(sources, [s.weight for s in specs], EVAL_SEED_START, seed=config.seed), augmentors
 
