@@ -393,13 +393,15 @@ def test_yjitter_moves_only_the_right_crop_by_at_most_two_rows(pair):
     assert deltas == {-2, -1, 0, 1, 2}
 
 
-def test_veil_is_drawn_last_and_changes_no_other_draw(pair):
-    """veil_prob > 0 adds its draw after every other, so runs without it see the old augmentation."""
-    plain, veiled = StereoAugmentor((80, 120)), StereoAugmentor((80, 120), veil_prob=1.0)
+@pytest.mark.parametrize("field, before", [("veil", {}), ("noise", {"veil_prob": 0.5})])
+def test_optional_step_is_drawn_last_and_changes_no_other_draw(field, before):
+    """veil_prob > 0 (noise_prob > 0) adds its draw after every other (the veil's too), so runs without it see
+    the augmentation they saw before it existed."""
+    plain, extra = StereoAugmentor((80, 120), **before), StereoAugmentor((80, 120), **before, **{f"{field}_prob": 1.0})
     for seed in range(10):
-        without, with_veil = plain.draw((120, 180), _rng(seed)), veiled.draw((120, 180), _rng(seed))
-        assert without.veil is None and with_veil.veil is not None
-        assert dataclasses.replace(with_veil, veil=None) == without
+        without, with_step = plain.draw((120, 180), _rng(seed)), extra.draw((120, 180), _rng(seed))
+        assert getattr(without, field) is None and getattr(with_step, field) is not None
+        assert dataclasses.replace(with_step, **{field: None}) == without
 
 
 def test_veil_draws_follow_the_docstring():
@@ -452,15 +454,6 @@ def test_veil_keeps_the_pair_consistent_for_any_depth():
         np.testing.assert_array_equal(left_rows, right_rows)
         changed += int((out["left"] != texture[y0:y0 + 64, x0:x0 + 96]).any())
     assert changed >= 5
-
-
-def test_noise_is_drawn_last_and_changes_no_other_draw():
-    """noise_prob > 0 adds its draw after every other (the veil's too), so runs without it see the old augmentation."""
-    plain, noisy = StereoAugmentor((80, 120), veil_prob=0.5), StereoAugmentor((80, 120), veil_prob=0.5, noise_prob=1.0)
-    for seed in range(10):
-        without, with_noise = plain.draw((120, 180), _rng(seed)), noisy.draw((120, 180), _rng(seed))
-        assert without.noise is None and with_noise.noise is not None
-        assert dataclasses.replace(with_noise, noise=None) == without
 
 
 def test_noise_draws_follow_the_docstring():
