@@ -60,12 +60,14 @@ def main() -> int:
     iters = tuple(args.iters)
     print(f"{args.pairs} pairs per set at {args.size[0]}x{args.size[1]}, iterations {iters}; EPE px / bad-3 pooled")
     for preset in args.sets:
-        for name, overrides in RENDERINGS.items():
-            pairs = SyntheticStereo(args.pairs, *args.size, seed=VALIDATION_SEED_START,
-                                    underwater={"preset": preset, **overrides})
+        renderings = {name: list(SyntheticStereo(args.pairs, *args.size, seed=VALIDATION_SEED_START,
+                                                 underwater={"preset": preset, **overrides}))
+                      for name, overrides in RENDERINGS.items()}
+        for name, pairs in renderings.items():
             epe, bad3 = pooled_errors(model, pairs, iters)
             print(f"{preset:10} {name:32} {epe:6.2f} {bad3:6.1f}%", flush=True)
-        rendered = list(SyntheticStereo(args.pairs, *args.size, seed=VALIDATION_SEED_START, underwater=preset))
+        # the denoisers see the pairs as rendered, not rendered again
+        rendered = renderings["as rendered"]
         for name, denoise in denoisers().items():
             epe, bad3 = pooled_errors(model, rendered, iters, denoise)
             print(f"{preset:10} {'denoised: ' + name:32} {epe:6.2f} {bad3:6.1f}%", flush=True)

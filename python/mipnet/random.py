@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["manual_seed", "default_generator"]
+__all__ = ["manual_seed", "default_generator", "log_uniform"]
 
 _generator = np.random.default_rng()
 
@@ -19,3 +19,8 @@ def manual_seed(seed: int) -> np.random.Generator:
 def default_generator() -> np.random.Generator:
     """The global generator."""
     return _generator
+
+
+def log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
+    """One draw from ``rng`` whose logarithm is uniform on [log low, log high]."""
+    return float(np.exp(rng.uniform(np.log(low), np.log(high))))

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ArgumentError
+from ..random import log_uniform
 from . import textures
 from .synthetic import EVAL_SEED_START, GeneratedStereo, _rotate, check_seed, check_size
 
@@ -290,8 +291,6 @@ class _Paint:
         return np.clip(rgb * shade[:, None], 0.0, 1.0)
 
 
-def _loguniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return float(np.exp(rng.uniform(np.log(low), np.log(high))))
 
 
 def _pick(shares: dict, draw: float):
@@ -339,8 +338,8 @@ class _Painter:
         photo = not texture.periodic
         upright, tilt, any_angle = rng.random(), rng.normal(0.0, 0.2), rng.uniform(0.0, 2 * np.pi)
         angle = tilt if photo and upright < 0.7 else any_angle
-        scale = _loguniform(rng, 0.5, 3.0) if photo else _loguniform(rng, 0.3, 4.0)
-        stretch = _loguniform(rng, 0.7, 1.4)
+        scale = log_uniform(rng, 0.5, 3.0) if photo else log_uniform(rng, 0.3, 4.0)
+        stretch = log_uniform(rng, 0.7, 1.4)
         cos, sin = np.cos(angle), np.sin(angle)
         # Rotation by angle, then the axes scaled by scale * stretch^(+-1/2).
         frame = np.array([[cos, sin], [-sin, cos]]) * (scale * np.array([[stretch**0.5], [stretch**-0.5]]))
@@ -441,7 +440,7 @@ class _Composer:
 
     def depth(self, low: float, high: float) -> float:
         """A disparity log-uniform in [low, high] * d_max (depth log-uniform: a long tail of near ones)."""
-        return _loguniform(self.rng, low, high) * self.d_max
+        return log_uniform(self.rng, low, high) * self.d_max
 
     def centre(self, d: float) -> tuple[float, float]:
         """A centre anywhere either view can see (the right view sees left x up to W - 1 + d)."""
@@ -488,8 +487,8 @@ class _Composer:
         rng = self.rng
         d = self.depth(0.03, 1.0)
         nearness = 0.5 + d / self.d_max  # nearer objects look larger
-        radius = self.size * _loguniform(rng, 0.025, 0.22) * nearness
-        aspect = _loguniform(rng, 1 / 3, 3.0)
+        radius = self.size * log_uniform(rng, 0.025, 0.22) * nearness
+        aspect = log_uniform(rng, 1 / 3, 3.0)
         half = (radius * aspect**0.5, radius * aspect**-0.5)  # half axes with ratio aspect, geometric mean radius
         centre, angle = self.centre(d), float(rng.uniform(0.0, np.pi))
         kind_draw, curved = rng.random(), rng.random() < 0.45
@@ -516,7 +515,7 @@ class _Composer:
     def thin_width(self, d: float, scale: float = 1.0) -> float:
         """Half width of a thin structure (px), wider when near; at least 0.5 px, so that a stroke
         at any angle covers a pixel centre in every row or column it crosses."""
-        width = _loguniform(self.rng, 0.5, 2.0) * (0.6 + d / self.d_max) * max(1.0, self.size / 256) ** 0.5
+        width = log_uniform(self.rng, 0.5, 2.0) * (0.6 + d / self.d_max) * max(1.0, self.size / 256) ** 0.5
         return max(0.5, width * scale)
 
     def pole(self) -> None:
@@ -583,7 +582,7 @@ class _Composer:
         period = rng.uniform(5.0, 20.0) * (0.6 + d / self.d_max)  # nearer fences look coarser
         bar = min(rng.uniform(0.5, 2.5), 0.35 * period)  # bars cover at most 70% of a period
         both = rng.random() < 0.5  # a grid; else a fence of bars across u only (half width -1: no v bars)
-        periods = (period, period * _loguniform(rng, 0.6, 1.6))
+        periods = (period, period * log_uniform(rng, 0.6, 1.6))
         upright, any_angle = rng.random(), rng.uniform(0, np.pi)
         angle = float(rng.normal(0.0, 0.1) if upright < 0.7 else any_angle)
         shape = _Grid(centre, half, angle, periods, (bar, bar if both else -1.0))
@@ -716,7 +715,7 @@ def _camera(rng: np.random.Generator, image: np.ndarray) -> np.ndarray:
     sigma = rng.uniform(0.2, 0.8) if rng.random() < 0.6 else 0.0
     if sigma > 0:
         out = _gaussian_blur(out, sigma)
-    read, shot = _loguniform(rng, 0.002, 0.015), rng.uniform(0.0, 0.02)
+    read, shot = log_uniform(rng, 0.002, 0.015), rng.uniform(0.0, 0.02)
     # Noise std sqrt(read^2 + shot^2 * signal): Gaussian approximation of Poisson-Gaussian noise.
     noise = rng.standard_normal(out.shape, dtype=np.float32) * np.sqrt(read**2 + shot**2 * np.clip(out, 0.0, 1.0))
     return _quantise(out + noise)

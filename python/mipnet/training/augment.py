@@ -45,6 +45,7 @@ import numpy as np
 from PIL import Image, ImageEnhance, ImageStat
 
 from ..errors import ArgumentError, DTypeError, ShapeError
+from ..random import log_uniform
 from ..underwater import linear_to_srgb, srgb_to_linear
 
 __all__ = ["AugmentParams", "ColorParams", "VeilParams", "NoiseParams", "StereoAugmentor", "SparseStereoAugmentor", "make_augmentor"]
@@ -559,13 +560,10 @@ class StereoAugmentor:
     def _draw_noise(self, rng: np.random.Generator) -> NoiseParams | None:
         if rng.random() >= self.noise_prob:
             return None
-
-        def log_uniform(low: float, high: float) -> float:
-            return float(np.exp(rng.uniform(np.log(low), np.log(high))))
-
-        exposure, full_well, read_noise = log_uniform(0.1, 1.0), log_uniform(50.0, 3000.0), log_uniform(0.001, 0.015)
+        exposure, full_well = log_uniform(rng, 0.1, 1.0), log_uniform(rng, 50.0, 3000.0)
+        read_noise = log_uniform(rng, 0.001, 0.015)
         uniform = rng.random() < 0.5
-        floor, radius = (1.0 if uniform else log_uniform(0.05, 0.5)), float(rng.uniform(0.3, 0.8))
+        floor, radius = (1.0 if uniform else log_uniform(rng, 0.05, 0.5)), float(rng.uniform(0.3, 0.8))
         centre = (float(rng.uniform(0, self.crop[0])), float(rng.uniform(0, self.crop[1])))
         return NoiseParams(exposure=exposure, full_well=full_well, read_noise=read_noise, floor=floor, centre=centre,
                            radius=radius, seed=int(rng.integers(2**62)))
