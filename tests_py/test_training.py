@@ -177,6 +177,23 @@ def test_augmentation_probability_reaches_every_augmentor_only_with_augment(sett
     assert getattr(TrainConfig.from_json(json.dumps(old)), setting) == 0.0
 
 
+def test_noise_sources_air_leaves_the_generated_under_water_sources_as_rendered():
+    from mipnet.training.config import TrainConfig
+    from mipnet.training.fit import build_dataset
+
+    data = ["synthetic", "scenes-underwater", "scenes", "synthetic-underwater"]
+    config = resolve_config("cpu", overrides={"noise": 0.3, "noise_sources": "air", "data": data})
+    _, augmentors = build_dataset(config)
+    assert [a.noise_prob for a in augmentors] == [0.3, 0.0, 0.3, 0.0]
+    assert TrainConfig.from_json(config.to_json()).noise_sources == "air"
+    # a run written before the setting existed resumes with the noise on every source, as it ran
+    old = json.loads(config.to_json())
+    del old["noise_sources"]
+    assert TrainConfig.from_json(json.dumps(old)).noise_sources == "all"
+    with pytest.raises(ArgumentError, match="noise_sources must be one of"):
+        resolve_config("cpu", overrides={"noise_sources": "water"})
+
+
 def test_spatial_scale_reaches_every_augmentor_and_survives_a_resume():
     from mipnet.training.config import TrainConfig
     from mipnet.training.fit import build_dataset

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import argparse
 
-from .config import PRESETS, load_config_file, resolve_config
+from .config import NOISE_SOURCES, PRESETS, load_config_file, resolve_config
 
 # flags that map one-to-one onto TrainConfig fields
 _FIELDS = ("steps", "schedule_steps", "batch_size", "crop", "iters", "lr", "init", "seed", "val_every", "val_pairs",
            "val_size", "val_data", "checkpoint_every", "workers", "data", "veil", "noise",
-           "spatial_scale")
+           "noise_sources", "spatial_scale")
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -48,6 +48,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--veil", type=float, metavar="P", help="probability of the row veil augmentation (default 0)")
     p.add_argument("--noise", type=float, metavar="P",
                    help="probability of the dim-light and sensor-noise augmentation (default 0)")
+    p.add_argument("--noise-sources", choices=NOISE_SOURCES,
+                   help="sources the noise reaches: all (default), or air (not the generated under-water ones)")
     p.add_argument("--freeze-bn", dest="freeze_bn", action="store_true", default=None)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

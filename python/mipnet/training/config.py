@@ -29,6 +29,9 @@ else:  # Python 3.10: the same parser as a package
 # (in air and under randomised water), some of the simple planar scenes.
 DEFAULT_DATA = ("scenes:0.55", "scenes-underwater:0.3", "synthetic:0.1", "synthetic-underwater:0.05")
 
+# Values of TrainConfig.noise_sources.
+NOISE_SOURCES = ("all", "air")
+
 
 @dataclasses.dataclass
 class TrainConfig:
@@ -64,6 +67,10 @@ class TrainConfig:
         Probability of dim light and sensor noise on a training crop (``noise_prob`` of
         :class:`mipnet.training.StereoAugmentor`), independent of depth; 0 (default): off. Ignored
         without ``augment``.
+    noise_sources : str
+        Which sources the noise augmentation reaches: ``"all"`` (default), or ``"air"``: every source
+        but the generated under-water ones (``scenes-underwater``, ``synthetic-underwater``), whose
+        renderer already draws a sensor's noise under the water's own light.
     data : list of str
         Data specs (see :mod:`mipnet.training.data_spec`), e.g. ``["scenes:0.7", "kitti2015:/data/kitti:0.3"]``.
     init : str or None
@@ -96,6 +103,7 @@ class TrainConfig:
     spatial_scale: tuple[float, float] = (-0.2, 0.4)
     veil: float = 0.0
     noise: float = 0.0
+    noise_sources: str = "all"
     data: list[str] = dataclasses.field(default_factory=lambda: list(DEFAULT_DATA))
     init: str | None = None
     seed: int = 1234
@@ -142,6 +150,8 @@ class TrainConfig:
             raise ArgumentError(f"TrainConfig: crop must be multiples of 16 and >= 32, got {list(self.crop)}")
         if self.iters[0] < 1 or self.iters[1] < 0:
             raise ArgumentError(f"TrainConfig: iters needs N16 >= 1 and N4 >= 0, got {list(self.iters)}")
+        if self.noise_sources not in NOISE_SOURCES:
+            raise ArgumentError(f"TrainConfig: noise_sources must be one of {list(NOISE_SOURCES)}, got {self.noise_sources!r}")
         for name in ("veil", "noise"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ArgumentError(f"TrainConfig: {name} is a probability in [0, 1], got {getattr(self, name)}")

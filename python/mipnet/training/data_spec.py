@@ -97,6 +97,12 @@ def is_sparse(spec: DataSpec) -> bool:
     return spec.name in ("kitti2012", "kitti2015", "eth3d")
 
 
+def renders_sensor_noise(spec: DataSpec) -> bool:
+    """Whether a spec's pairs are generated under water, with a sensor's noise under the water's light
+    (:func:`mipnet.underwater.degrade`)."""
+    return spec.name in ("scenes-underwater", "synthetic-underwater")
+
+
 class Mixture(Dataset):
     """``length`` samples drawn from several datasets in proportion to their weights.
 

@@ -39,7 +39,7 @@ from ..random import default_generator, manual_seed
 from .augment import make_augmentor
 from .checkpoint import TrainState, list_checkpoints, load_latest_checkpoint, save_checkpoint
 from .config import TrainConfig
-from .data_spec import EVAL_SEED_START, Mixture, is_sparse, open_spec, parse_spec
+from .data_spec import EVAL_SEED_START, Mixture, is_sparse, open_spec, parse_spec, renders_sensor_noise
 from .log import TrainLog
 from .validation import format_validation, mean_epe, validate_model, validate_sgbm, validation_sets
 
@@ -61,9 +61,13 @@ def build_dataset(config: TrainConfig) -> tuple[Mixture, list]:
     options = {"scale_range": config.spatial_scale}
     if config.augment and config.veil > 0:
         options["veil_prob"] = config.veil
-    if config.augment and config.noise > 0:
-        options["noise_prob"] = config.noise
-    augmentors = [make_augmentor(config.crop, sparse=is_sparse(spec), augment=config.augment, **options) for spec in specs]
+
+    def noise_options(spec) -> dict:
+        noisy = config.augment and config.noise > 0 and not (config.noise_sources == "air" and renders_sensor_noise(spec))
+        return {"noise_prob": config.noise} if noisy else {}
+
+    augmentors = [make_augmentor(config.crop, sparse=is_sparse(spec), augment=config.augment, **options, **noise_options(spec))
+                  for spec in specs]
     return Mixture(sources, [s.weight for s in specs], EVAL_SEED_START, seed=config.seed), augmentors
 
 
