@@ -142,10 +142,16 @@ pub(super) fn pays(g: &Geom) -> bool {
 
 /// Least Cin·Cout / (Cin + Cout) for the Winograd weight gradient: per tile it transforms Cin + Cout
 /// planes and then saves GEMM work in proportion to Cin·Cout, and its two GEMM operands are both
-/// packed per call (the forward's weights are packed once). Measured for F(4x4, 3x3) on an AMD
-/// Zen 4 (2 threads), dW against the direct path: 64->64 and 96->96 (32, 48) slower, 128->94 (54)
-/// even, 128->128 (64) 1.2x faster, 128->256 (85) 1.35x, 352->256 (148) 1.9x.
-const MIN_DW_CHANNEL_RATIO: usize = 56;
+/// packed per call (the forward's weights are packed once). Measured for F(4x4, 3x3), dW against the
+/// direct path, 2 threads (`WINOGRAD=on|off cargo run --release --example conv_time`):
+/// - AMD Zen 4, a training run in the background: 64->64 and 96->96 (32, 48) slower, 128->94 (54)
+///   even, 128->128 (64) 1.2x faster, 128->256 (85) 1.35x, 352->256 (148) 1.9x;
+/// - AMD Zen 5, nothing else running, each shape twice: 64->64 (32) at 128x256 N=4 1.9-2.0x faster,
+///   at 64x128 N=4 1.3x, N=2 1.05x; 96->96 (48) 1.9x, 64->128 (43) 1.35x, 128->94 (54) 2.0x,
+///   96->128 (55) 1.8x; 64->32 (21) 1.26x, 32->64 (21) 0.9x. A training step at 256x512, batch 2,
+///   (4, 4): 5.78 s with the threshold at 56, 5.48 s at 32 (median of 3).
+/// The Zen 5 figures were taken on a quiet machine, so the threshold follows them.
+const MIN_DW_CHANNEL_RATIO: usize = 32;
 
 /// Whether the Winograd weight gradient pays (see [`MIN_DW_CHANNEL_RATIO`]).
 pub(super) fn weight_grad_pays(g: &Geom) -> bool {
