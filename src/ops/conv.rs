@@ -22,6 +22,7 @@
 //!   input channels; Winograd's adjoint for the stride-1 3x3 convs where it pays;
 //! - db: per output channel, Σ over images and pixels in order.
 
+use super::lanes;
 use crate::gemm::{self, gemm_ex, Epilogue, Init, PackB, Plan, Prepacked, SourceA, Strided};
 use crate::tensor::{check_nonempty, fixed};
 use crate::{Error, Float, Result};
@@ -867,15 +868,22 @@ impl<F: Float> PackB<F> for NhwcColsT<'_, F> {
     }
 }
 
-/// `db[o]` = Σ_n Σ_p `dY[n, o, p]`, in order.
+/// `db[o]` = Σ_n Σ_p `dY[n, o, p]`: each image's plane by [`lanes::sum`] (vectorised, f64 across
+/// blocks), the images in order in f64.
 fn bias_grad<F: Float>(g: &Geom, dy: &[F]) -> Array1<F> {
     let pix = g.pix();
     let sums: Vec<F> = (0..g.cout)
         .into_par_iter()
-        .map(|o| (0..g.n).fold(F::zero(), |acc, n| {
-            let start = (n * g.cout + o) * pix;
-            dy[start..start + pix].iter().fold(acc, |a, &v| a + v)
-        }))
+        .map(|o| {
+            let total = (0..g.n).fold(0.0, |acc, n| {
+                // plane (n, o) of dY starts at (n·Cout + o)·pix
+                let start = (n * g.cout + o) * pix;
+                let mut plane = 0.0;
+                lanes::sum(&dy[start..start + pix], &mut plane);
+                acc + plane
+            });
+            F::from_f64(total).unwrap_or(F::nan())
+        })
         .collect();
     Array1::from(sums)
 }

@@ -1,5 +1,6 @@
 //! Vector helpers of the channels-last kernels (`warp_corr`, `gru`): a dot product and an axpy with a
-//! fixed summation order, and the instruction set their loops are compiled for.
+//! fixed summation order, and the instruction set their loops are compiled for; blocked sums with
+//! f64 totals (the norms' moments, the convolutions' bias gradient).
 //!
 //! A dot product keeps `LANES` running sums (element i goes to sum i mod `LANES`) and adds them
 //! pairwise at the end. That order is part of the definition, not of the machine: the compiler maps
@@ -83,6 +84,35 @@ pub fn axpy<F: Float>(alpha: F, x: &[F], y: &mut [F]) {
     y.iter_mut().zip(x).for_each(|(y, &x)| *y += alpha * x);
 }
 
+/// Elements a run of lane sums adds up in F before its total moves to the f64 running sum, which
+/// bounds the growth of f32 rounding error (each lane sums BLOCK / LANES values).
+const BLOCK: usize = 4096;
+
+/// Σ_i term([run_0[i], .., run_K-1[i]]) over the runs' common length: per BLOCK, LANES running sums
+/// in F (element i to sum i mod LANES) added up in f64, blocks in order. The order is fixed, so
+/// results depend on neither the ISA nor the thread count.
+#[inline(always)]
+pub fn blocked_sum<F: Float, const K: usize>(runs: [&[F]; K], term: impl Fn([F; K]) -> F) -> f64 {
+    let len = runs.iter().map(|r| r.len()).min().unwrap_or(0);
+    let mut total = 0.0;
+    for start in (0..len).step_by(BLOCK) {
+        let end = (start + BLOCK).min(len);
+        let mut acc = [F::zero(); LANES];
+        let full = start + (end - start) / LANES * LANES;
+        for i in (start..full).step_by(LANES) {
+            let chunk: [&[F; LANES]; K] = std::array::from_fn(|k| runs[k][i..i + LANES].try_into().expect("LANES elements"));
+            for (l, a) in acc.iter_mut().enumerate() {
+                *a += term(std::array::from_fn(|k| chunk[k][l]));
+            }
+        }
+        for (l, i) in (full..end).enumerate() {
+            acc[l] += term(std::array::from_fn(|k| runs[k][i]));
+        }
+        total += acc.iter().map(|&a| a.to_f64().unwrap_or(f64::NAN)).sum::<f64>();
+    }
+    total
+}
+
 /// Defines `fn $name<F: Float>(args)` whose body is compiled three times (AVX-512F, AVX2, generic)
 /// and dispatched on [`isa`]. The body must only call `#[inline(always)]` helpers for them to be
 /// compiled with the wider registers.
@@ -115,6 +145,13 @@ macro_rules! multiversion {
     };
 }
 pub(crate) use multiversion;
+
+multiversion! {
+    /// out = Σ x_i over a run, in [`blocked_sum`]'s order (f64 across blocks).
+    pub fn sum<F: Float>(x: &[F], out: &mut f64) {
+        *out = blocked_sum([x], |[x]| x);
+    }
+}
 
 /// e^x. f32: Cephes' `expf` (range reduction x = n·ln2 + r, degree-6 polynomial, about 1 ulp), written
 /// without branches or calls so that loops over it vectorise; x is clamped to [-87.33, 88.37], the

@@ -16,7 +16,7 @@ use ndarray::{Array1, Array2, Array3, Array4, ArrayView1, ArrayView3, ArrayViewD
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
 
-use super::lanes::{multiversion, LANES};
+use super::lanes::{blocked_sum, multiversion};
 
 /// Numeric settings of `batch_norm_fwd` (torch's `training`, `momentum`, `eps`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -107,35 +107,6 @@ fn saved<'a, F: Float, D: ndarray::Dimension>(op: &'static str, name: &'static s
         return Err(Error::shape(op, format!("{name} must have shape {expected:?}"), &[("input", x_shape), (name, s.shape())]));
     }
     fixed::<_, D>(op, name, s)
-}
-
-/// Elements a run of lane sums adds up in F before its total moves to the f64 running sum, which
-/// bounds the growth of f32 rounding error (each lane sums BLOCK / LANES values).
-const BLOCK: usize = 4096;
-
-/// Σ_i term([run_0[i], .., run_K-1[i]]) over the runs' common length: per BLOCK, LANES running sums
-/// in F (element i to sum i mod LANES) added up in f64, blocks in order. The order is fixed, so
-/// results depend on neither the ISA nor the thread count.
-#[inline(always)]
-fn blocked_sum<F: Float, const K: usize>(runs: [&[F]; K], term: impl Fn([F; K]) -> F) -> f64 {
-    let len = runs.iter().map(|r| r.len()).min().unwrap_or(0);
-    let mut total = 0.0;
-    for start in (0..len).step_by(BLOCK) {
-        let end = (start + BLOCK).min(len);
-        let mut acc = [F::zero(); LANES];
-        let full = start + (end - start) / LANES * LANES;
-        for i in (start..full).step_by(LANES) {
-            let chunk: [&[F; LANES]; K] = std::array::from_fn(|k| runs[k][i..i + LANES].try_into().expect("LANES elements"));
-            for (l, a) in acc.iter_mut().enumerate() {
-                *a += term(std::array::from_fn(|k| chunk[k][l]));
-            }
-        }
-        for (l, i) in (full..end).enumerate() {
-            acc[l] += term(std::array::from_fn(|k| runs[k][i]));
-        }
-        total += acc.iter().map(|&a| to_f64(a)).sum::<f64>();
-    }
-    total
 }
 
 multiversion! {
