@@ -23,8 +23,9 @@ from the ``numpy.random.Generator`` it is given (the loader seeds one per sample
    the same in both views) and a random exposure, then Poisson shot noise and Gaussian read noise drawn
    independently for each view, as :func:`mipnet.underwater.degrade`'s sensor. Dark, noisy regions then
    occur at every depth and on every kind of scene; it is there to make the network match through the
-   noise of a low-light image. Measured so far (docs/training.md, stage 9): better in air and on real
-   pairs, worse under water, where dark does mean far.
+   noise of a low-light image. Measured so far (docs/training.md, stages 9 and 10): on every source,
+   better in air and on the real pairs, worse under water, where dark does mean far; on the pairs in air
+   only (``TrainConfig.noise_sources``), worse under water still.
 
 Speed: every draw is made before any pixel is touched, so only the source window that the crop
 reads is coloured, occluded and resampled, which gives exactly the pixels of "whole image, then
