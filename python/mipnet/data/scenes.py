@@ -291,8 +291,6 @@ class _Paint:
         return np.clip(rgb * shade[:, None], 0.0, 1.0)
 
 
-
-
 def _pick(shares: dict, draw: float):
     """The key whose share interval holds ``draw`` in [0, 1) (inverse CDF of the shares)."""
     return list(shares)[int(np.searchsorted(np.cumsum(list(shares.values())), draw, side="right"))]
