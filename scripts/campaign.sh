@@ -3,13 +3,13 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
-#   scripts/campaign.sh cycle [STEPS] [s1|...|s10]
+#   scripts/campaign.sh cycle [STEPS] [s1|...|s11]
 #                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
-#                                     # with stage 1's (default) to 10's settings, from the shipped
+#                                     # with stage 1's (default) to 11's settings, from the shipped
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
-#   scripts/campaign.sh args KIND     # print the training arguments of cycle kind KIND (s1 to s10)
+#   scripts/campaign.sh args KIND     # print the training arguments of cycle kind KIND (s1 to s11)
 #
 # The run uses a snapshot of the package (python/ and the built core) copied to ENGINE, so rebuilding
 # or editing the working tree never changes the code under a running process; `start` refreshes the
@@ -46,6 +46,8 @@ cycle_args() {
   # more than half of the pairs in air, or seven in ten under water
   local air_heavy="--data scenes:0.45 scenes-underwater:0.35 synthetic:0.1 synthetic-underwater:0.1"
   local water_heavy="--data scenes:0.25 scenes-underwater:0.5 synthetic:0.05 synthetic-underwater:0.2"
+  # between the two: 57% of the pairs under water
+  local water_mid="--data scenes:0.35 scenes-underwater:0.42 synthetic:0.08 synthetic-underwater:0.15"
   case "$1" in
     s1) echo "--crop 128 256 --batch-size 4 --iters 3 3 --lr 3e-4" ;;
     s2) echo "$mid $air_heavy" ;;
@@ -76,7 +78,10 @@ cycle_args() {
     # under-water sets worse, having laid random dim spots over the water's own dive light (where dark is far); the
     # under-water generator already draws a sensor's noise under that light
     s10) echo "$wide $air_heavy --veil 0.35 --spatial-scale -0.3 0.1 --noise 0.3 --noise-sources air" ;;
-    *) echo "unknown cycle kind $1 (s1 to s10)" >&2; exit 2 ;;
+    # 11: stage 8 with the water share between stages 6 and 7: every stage-8 cycle gained in air and on the scenes
+    # and lost under water, stage 7's seven pairs in ten lost the veiled scenes and the real pairs
+    s11) echo "$wide $water_mid --veil 0.35 --spatial-scale -0.3 0.1" ;;
+    *) echo "unknown cycle kind $1 (s1 to s11)" >&2; exit 2 ;;
   esac
 }
 
