@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ArgumentError
+from .random import log_uniform
 
 __all__ = ["degrade", "random_water", "WaterParams", "PRESETS", "JERLOV_KD", "srgb_to_linear", "linear_to_srgb"]
 
@@ -196,15 +197,12 @@ def random_water(rng: np.random.Generator, preset: str | None = None) -> WaterPa
         raise ArgumentError(f"random_water: unknown preset {preset!r}; expected one of {names} or None")
     base = PRESETS[preset if preset is not None else pick]
 
-    def factor(low: float, high: float, size=None):
-        return np.exp(rng.uniform(np.log(low), np.log(high), size))
-
     classes = list(JERLOV_KD)
     position = classes.index(base.water_type)
     # Half the time a neighbouring class, one step either way (clamped to the list's ends).
     step = int(rng.choice([-1, 1])) if rng.random() < 0.5 else 0
     water_type = classes[int(np.clip(position + step, 0, len(classes) - 1))]
-    backscatter = np.clip(np.asarray(base.backscatter_coef) * factor(0.6, 1.7) * rng.uniform(0.85, 1.15, 3), 0.01, 2.0)
+    backscatter = np.clip(np.asarray(base.backscatter_coef) * log_uniform(rng, 0.6, 1.7) * rng.uniform(0.85, 1.15, 3), 0.01, 2.0)
     veil = np.clip(np.asarray(base.veiling_light) * rng.uniform(0.7, 1.35, 3), 0.01, 0.9)
     lamp_draw, lamp_strength, lamp_scale = rng.random(), rng.uniform(0.2, 1.0), rng.uniform(0.6, 1.5)
     if base.artificial_light > 0:
@@ -214,20 +212,20 @@ def random_water(rng: np.random.Generator, preset: str | None = None) -> WaterPa
     return dataclasses.replace(
         base,
         water_type=water_type,
-        scattering=float(np.clip(base.scattering * factor(0.5, 2.0), 0.005, 1.5)),
+        scattering=float(np.clip(base.scattering * log_uniform(rng, 0.5, 2.0), 0.005, 1.5)),
         backscatter_coef=tuple(float(v) for v in backscatter),
         veiling_light=tuple(float(v) for v in veil),
         backscatter_strength=float(base.backscatter_strength * rng.uniform(0.6, 1.4)),
-        forward_scatter=float(min(base.forward_scatter * factor(0.5, 2.0), 2.5)),
-        depth=float(np.clip(base.depth * factor(0.5, 2.0), 0.5, 40.0)),
-        gain=float(np.clip(base.gain * factor(0.67, 1.5), 0.05, 1.5)),
-        full_well=float(np.clip(base.full_well * factor(0.5, 2.0), 100.0, 5000.0)),
-        read_noise=float(np.clip(base.read_noise * factor(0.5, 2.0), 0.0005, 0.03)),
+        forward_scatter=float(min(base.forward_scatter * log_uniform(rng, 0.5, 2.0), 2.5)),
+        depth=float(np.clip(base.depth * log_uniform(rng, 0.5, 2.0), 0.5, 40.0)),
+        gain=float(np.clip(base.gain * log_uniform(rng, 0.67, 1.5), 0.05, 1.5)),
+        full_well=float(np.clip(base.full_well * log_uniform(rng, 0.5, 2.0), 100.0, 5000.0)),
+        read_noise=float(np.clip(base.read_noise * log_uniform(rng, 0.5, 2.0), 0.0005, 0.03)),
         artificial_light=float(light),
         light_cone=float(rng.uniform(0.3, 0.8)),
-        marine_snow=float(min(base.marine_snow * factor(0.3, 3.0), 1000.0)),
+        marine_snow=float(min(base.marine_snow * log_uniform(rng, 0.3, 3.0), 1000.0)),
         snow_brightness=float(np.clip(base.snow_brightness * rng.uniform(0.6, 1.3), 0.1, 1.2)),
-        baseline=float(base.baseline * factor(0.5, 2.0)),
+        baseline=float(base.baseline * log_uniform(rng, 0.5, 2.0)),
     )
 
 
