@@ -5,9 +5,10 @@
 //! |---|---|---|
 //! | attention gate | `attention_gate_fwd` | `attention_gate_bwd` (local, global, x, y) |
 //!
-//! Work is split by (n, c) planes; the global gradient sums its plane in a fixed order.
+//! Work is split by (n, c) planes; the global gradient sums its plane in a fixed order (vectorised lane
+//! sums, f64 across blocks).
 
-use super::lanes::{multiversion, sigmoid};
+use super::lanes::{self, multiversion, sigmoid};
 use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{Array4, ArrayView4, ArrayViewD, Ix4};
@@ -110,8 +111,10 @@ pub fn attention_gate_bwd<F: Float>(local: ArrayViewD<F>, global: ArrayViewD<F>,
         .for_each(|(i, (((dlp, dxp), dyp), dgv))| {
             let r = i * plane..(i + 1) * plane;
             gate_grad_plane(dlp, dxp, dyp, &ls[r.clone()], gls[i], &xs[r.clone()], &ys[r.clone()], &gs[r]);
-            // d global = Σ d local over the plane, in order
-            *dgv = dlp.iter().fold(F::zero(), |a, &v| a + v);
+            // d global = Σ d local over the plane, in lane sum order (f64 across blocks)
+            let mut total = 0.0;
+            lanes::sum(dlp, &mut total);
+            *dgv = F::c(total);
         });
     Ok(AttentionGateGrads { local: dl, global: dg, x: dx, y: dy })
 }
