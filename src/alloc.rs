@@ -67,7 +67,7 @@ impl Cache {
         self.live += bytes;
         self.high = self.high.max(self.live);
         let hit = (0..CACHE_SLOTS).find(|&i| self.slots[i].1 != 0 && self.slots[i].0 == bytes).map(|i| {
-            let (size, addr, _) = std::mem::replace(&mut self.slots[i], (0, 0, 0));
+            let (size, addr, _) = std::mem::take(&mut self.slots[i]);
             self.bytes -= size;
             addr as *mut u8
         });
@@ -90,7 +90,7 @@ impl Cache {
         if self.bytes + bytes > limit || self.slots.iter().all(|s| s.1 != 0) {
             // evict the largest cached block (frees the most with one munmap)
             if let Some(i) = (0..CACHE_SLOTS).filter(|&i| self.slots[i].1 != 0).max_by_key(|&i| self.slots[i].0) {
-                let (size, addr, _) = std::mem::replace(&mut self.slots[i], (0, 0, 0));
+                let (size, addr, _) = std::mem::take(&mut self.slots[i]);
                 self.bytes -= size;
                 out[n] = (size, addr as *mut u8);
                 n += 1;

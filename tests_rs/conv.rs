@@ -60,7 +60,17 @@ const CASES: &[Case] = &[
     ("3x3_pad1_tile_in_last_row", [1, 2, 11, 9], [3, 2, 3, 3], [1, 1], [1, 1]),
     ("1x1_tiled", [1, 8, 40, 50], [5, 8, 1, 1], [1, 1], [0, 0]),
     ("3x3_tiled_64ch", [2, 64, 53, 59], [6, 64, 3, 3], [1, 1], [1, 1]),
+    // one or two output channels, stride 1: the tap-major path (pointwise GEMM + shift-add)
+    ("3x3_pad1_two_outputs", [2, 5, 7, 9], [2, 5, 3, 3], [1, 1], [1, 1]),
+    ("5x5_pad2_one_output", [1, 3, 9, 8], [1, 3, 5, 5], [1, 1], [2, 2]),
+    ("3x3_pad0x2_two_outputs", [2, 3, 7, 6], [2, 3, 3, 3], [1, 1], [0, 2]),
+    ("3x3_tiled_64ch_two_outputs", [2, 64, 53, 59], [2, 64, 3, 3], [1, 1], [1, 1]),
 ];
+
+/// The case of CASES named `name`.
+fn case(name: &str) -> Case {
+    *CASES.iter().find(|c| c.0 == name).expect("a case of CASES")
+}
 
 fn inputs(rng: &mut Rng, xs: &[usize], ws: &[usize]) -> (ArrayD<f64>, ArrayD<f64>, ArrayD<f64>) {
     (rng.array(xs, -1.0, 1.0), rng.array(ws, -1.0, 1.0), rng.array(&[ws[0]], -1.0, 1.0))
@@ -84,7 +94,7 @@ fn conv2d_fwd_matches_direct_sum_for_every_kernel_shape_f64() {
 #[test]
 fn conv2d_fwd_f32_matches_f64_direct_sum() {
     let mut rng = Rng::new(4);
-    let (name, xs, ws, stride, padding) = CASES[CASES.len() - 1];
+    let (name, xs, ws, stride, padding) = case("3x3_tiled_64ch");
     let cfg = Conv2dCfg::new(stride, padding);
     let (x, w, b) = inputs(&mut rng, &xs, &ws);
     let (x32, w32, b32) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
@@ -198,6 +208,14 @@ fn conv2d_3x3_many_tiles_and_channel_chunks_bwd_gradcheck_f64() {
 }
 
 #[test]
+fn conv2d_one_or_two_outputs_bwd_gradcheck_f64() {
+    gradcheck_case("3x3 p1 2 outputs", [2, 5, 7, 9], [2, 5, 3, 3], Conv2dCfg::new([1, 1], [1, 1]), 25);
+    gradcheck_case("5x5 p2 1 output", [1, 3, 9, 8], [1, 3, 5, 5], Conv2dCfg::new([1, 1], [2, 2]), 26);
+    // padding wider than a tap's reach on the columns: output columns that read only padding
+    gradcheck_case("3x3 p(0,2) 2 outputs", [2, 3, 7, 6], [2, 3, 3, 3], Conv2dCfg::new([1, 1], [0, 2]), 27);
+}
+
+#[test]
 fn conv2d_bwd_computes_only_the_requested_grads() {
     let mut rng = Rng::new(20);
     let cfg = Conv2dCfg::new([1, 1], [2, 2]);
@@ -215,8 +233,13 @@ fn conv2d_bwd_computes_only_the_requested_grads() {
 
 #[test]
 fn conv2d_results_do_not_depend_on_the_thread_count() {
+    for name in ["3x3_tiled_64ch", "3x3_tiled_64ch_two_outputs"] {
+        results_do_not_depend_on_the_thread_count(case(name));
+    }
+}
+
+fn results_do_not_depend_on_the_thread_count((name, xs, ws, stride, padding): Case) {
     let mut rng = Rng::new(21);
-    let (_, xs, ws, stride, padding) = CASES[CASES.len() - 1];
     let cfg = Conv2dCfg::new(stride, padding);
     let (x, w, b) = inputs(&mut rng, &xs, &ws);
     let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
@@ -231,10 +254,10 @@ fn conv2d_results_do_not_depend_on_the_thread_count() {
     let (y1, g1) = run(1);
     for threads in [2, 3, 5] {
         let (yt, gt) = run(threads);
-        assert_eq!(y1, yt, "forward, {threads} threads");
-        assert_eq!(g1.x, gt.x, "dx, {threads} threads");
-        assert_eq!(g1.w, gt.w, "dw, {threads} threads");
-        assert_eq!(g1.b, gt.b, "db, {threads} threads");
+        assert_eq!(y1, yt, "{name} forward, {threads} threads");
+        assert_eq!(g1.x, gt.x, "{name} dx, {threads} threads");
+        assert_eq!(g1.w, gt.w, "{name} dw, {threads} threads");
+        assert_eq!(g1.b, gt.b, "{name} db, {threads} threads");
     }
 }
 
@@ -398,7 +421,7 @@ fn conv2d_every_isa_path_matches_f64_forced_through_the_plan_argument() {
 fn conv2d_fused_relu_equals_relu_of_conv_bitwise() {
     use _core::gemm::Plan;
     let mut rng = Rng::new(50);
-    for &(name, xs, ws, stride, padding) in &[CASES[2], CASES[4], CASES[12]] {
+    for (name, xs, ws, stride, padding) in [CASES[2], CASES[4], case("3x3_tiled_64ch"), case("3x3_tiled_64ch_two_outputs")] {
         let cfg = Conv2dCfg::new(stride, padding);
         let (x, w, b) = inputs(&mut rng, &xs, &ws);
         let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));

@@ -20,7 +20,9 @@
 //! - dW: `DW_GROUPS` partial sums fixed by the shapes, added in group order; B built from x in
 //!   pixel-major layout with tap-major K (`NhwcColsT`), or from cols tiles in scratch for few
 //!   input channels; Winograd's adjoint for the stride-1 3x3 convs where it pays;
-//! - db: per output channel, Σ over images and pixels in order.
+//! - db: per output channel, Σ over images and pixels in order;
+//! - stride 1 with one or two output channels (the disparity heads): forward and dW as a pointwise
+//!   GEMM over taps·Cout rows and a shift-add (`tap_major`).
 
 use super::lanes;
 use crate::gemm::{self, gemm_ex, Epilogue, Init, PackB, Plan, Prepacked, SourceA, Strided};
@@ -33,6 +35,7 @@ use std::cell::RefCell;
 use std::ops::Range;
 use std::thread::LocalKey;
 
+mod tap_major;
 mod winograd;
 
 const OP: &str = "conv2d";
@@ -580,12 +583,15 @@ fn forward_tile<F>(g: &Geom, plan: &Plan<F>) -> usize {
 
 /// `Y[n][:, tile]` = W · cols(`x[n]`)[:, tile] (+ b, then ReLU) by tasks (image, tile): one GEMM per
 /// task, W packed once for all of them, cols built straight into the GEMM's packed B panels (x
-/// itself for a pointwise conv).
+/// itself for a pointwise conv); Winograd or [`tap_major`] where they apply.
 fn forward<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, bias: Option<&[F]>, relu: bool)
                      -> Result<Array4<F>> {
     let plan = run.plan;
     if let (true, Some(w)) = (run.winograd_for(g), wm.as_slice()) {
         return winograd::forward(plan, g, xs, w, bias, relu)?.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout);
+    }
+    if tap_major::applies(g) {
+        return tap_major::forward(run, g, xs, wm, bias, relu);
     }
     let wpack = Prepacked::new(plan, &strided(wm));
     let tile = forward_tile(g, plan);
@@ -742,11 +748,15 @@ const NHWC_MIN_CIN: usize = 16;
 ///   of Cin values of xᵀ (zeros for taps in the padding); the result is permuted back to c·taps + t;
 /// - otherwise: cols tiles in this thread's scratch (x itself when pointwise), packed transposed.
 ///
-/// A stride-1 3x3 f32 conv with enough channels takes [`winograd::weight_grad`] instead.
+/// A stride-1 3x3 f32 conv with enough channels takes [`winograd::weight_grad`] instead, a stride-1
+/// conv with one or two output channels [`tap_major::weight_grad`].
 fn weight_grad<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], dy: &[F]) -> Result<Array4<F>> {
     let plan = run.plan;
     if run.winograd_if(g, winograd::weight_grad_pays) {
         return winograd::weight_grad(plan, g, xs, dy).into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout);
+    }
+    if tap_major::applies(g) {
+        return tap_major::weight_grad(run, g, xs, dy)?.into_shape_with_order((g.cout, g.cin, g.kh, g.kw)).map_err(layout);
     }
     let (pix, wlen, taps) = (g.pix(), g.cout * g.k(), g.kh * g.kw);
     let nhwc = g.cin >= NHWC_MIN_CIN && !g.pointwise();
