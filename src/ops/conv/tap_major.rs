@@ -19,8 +19,8 @@ use ndarray::{Array2, Array4, ArrayView2};
 use rayon::prelude::*;
 use std::ops::Range;
 
-/// Most output channels for this path: the disparity heads' two (a third or a fourth would still
-/// leave most of an 8-row micro-panel empty on the direct path, but is not measured).
+/// Most output channels for this path: the disparity heads' two (three or four outputs would still
+/// leave half or more of an 8-row micro-panel empty on the direct path, but are not measured).
 const MAX_COUT: usize = 2;
 
 /// Whether a geometry takes this path: stride 1, not pointwise, at most [`MAX_COUT`] outputs.
