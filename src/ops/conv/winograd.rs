@@ -149,8 +149,12 @@ pub(super) fn pays(g: &Geom) -> bool {
 /// - AMD Zen 5, nothing else running, each shape twice: 64->64 (32) at 128x256 N=4 1.9-2.0x faster,
 ///   at 64x128 N=4 1.3x, N=2 1.05x; 96->96 (48) 1.9x, 64->128 (43) 1.35x, 128->94 (54) 2.0x,
 ///   96->128 (55) 1.8x; 64->32 (21) 1.26x, 32->64 (21) 0.9x. A training step at 256x512, batch 2,
-///   (4, 4): 5.78 s with the threshold at 56, 5.48 s at 32 (median of 3).
-/// The Zen 5 figures were taken on a quiet machine, so the threshold follows them.
+///   (4, 4): 5.78 s with the threshold at 56, 5.48 s at 32 (median of 3);
+/// - AMD Zen 4 again, the training run paused, each shape twice (best of 5): 64->64 at 128x256 N=4
+///   62-70 -> 45 ms (1.4-1.5x), at 64x128 N=4 16.2-16.7 -> 13.0-13.3 (1.25x), N=2 7.5-10.8 ->
+///   6.6-7.6 (1.0-1.6x); 96->96 33-34 -> 16-18 (2.0x); 128->94 23.1 -> 12.1-12.7 (1.85x); 64->128
+///   27.8-28.2 -> 17-22 (1.3-1.6x); 64->32 (21) 0.95-1.3x, 32->64 (21) 1.4-1.5x.
+/// The earlier Zen 4 figures were taken beside a training run; both quiet machines agree on 32.
 const MIN_DW_CHANNEL_RATIO: usize = 32;
 
 /// Whether the Winograd weight gradient pays (see [`MIN_DW_CHANNEL_RATIO`]).
