@@ -29,7 +29,7 @@ pub use cpu::{cpu_info, CpuInfo};
 pub use isa::{Isa, ISA_ENV};
 pub(crate) use kernel::Init;
 use kernel::{Tile, UKernel};
-pub(crate) use pack::{PackB, Prepacked, SourceA, Strided};
+pub(crate) use pack::{InPlace, PackB, Prepacked, SourceA, Strided};
 pub use peak::fma_peak_gflops;
 
 use crate::{Error, Float, Result};
@@ -281,7 +281,8 @@ fn with_bufs<R>(a: usize, b: usize, f: impl FnOnce(*mut u8, *mut u8) -> R) -> R 
 /// `Bias(b)` with b[i] for row i (m values).
 ///
 /// Loop order: A is packed for all of K, MC' rows at a time (MC' x K holds as many elements as the
-/// plan's MC x KC); then for each NC block of columns, for each KC block of depth: B packed (L2),
+/// plan's MC x KC); then for each NC block of columns, for each KC block of depth: B packed (L2;
+/// or read in place where the source already has the packed layout, [`PackB::in_place`]),
 /// then every A micro-panel (L1) against every B micro-panel. The C block (MC' x NC) stays in
 /// cache across the K blocks.
 ///
@@ -326,9 +327,13 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                     let kc = kcb.min(k - p0.min(k));
                     let block_init = if p0 == 0 { init } else { Init::Load };
                     let last = p0 + kc >= k;
-                    // B block row stride: nc rounded up to NR (the last micro-tile reads NR columns)
-                    let ldb = nc.div_ceil(nr) * nr;
-                    b.pack(plan, p0, kc, jc, nc, pb, ldb);
+                    // B block width: nc rounded up to NR (the last micro-tile reads NR columns);
+                    // the block read in place, or packed with row stride ldb
+                    let width = nc.div_ceil(nr) * nr;
+                    let (pb, ldb) = b.in_place(p0, jc, width).unwrap_or_else(|| {
+                        b.pack(plan, p0, kc, jc, nc, pb, width);
+                        (pb.cast_const(), width)
+                    });
                     for ir in (0..mc).step_by(mr) {
                         // A micro-panel of packed rows row0 + ir..: K block p0 at p0·mpad, its row r at r·kc
                         let ap = apack.wrapping_add(p0 * mpad + (row0 + ir) * kc);

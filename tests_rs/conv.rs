@@ -444,6 +444,8 @@ const WINOGRAD_CASES: &[Case] = &[
     // 19 tiles per row: one vector block of the row transforms (16 tiles) and a tail of 3
     ("3x3_p1_wide", [1, 3, 6, 75], [4, 3, 3, 3], [1, 1], [1, 1]),
     ("3x3_p1_64ch", [2, 64, 29, 35], [24, 64, 3, 3], [1, 1], [1, 1]),
+    // one band of 4 x 12 = 48 tiles, whole NR-column panels on every ISA path: the GEMM reads V in place
+    ("3x3_p1_in_place", [1, 3, 16, 48], [4, 3, 3, 3], [1, 1], [1, 1]),
     // F(4, 5) along rows and along columns: the GRUs' paddings, wider and odd ones, the row
     // transforms' vector blocks (16 tiles) with tails, and padding rows of a 1x5 kernel
     ("1x5_p0x2", [2, 3, 5, 13], [4, 3, 1, 5], [1, 1], [0, 2]),

@@ -25,6 +25,13 @@ pub(crate) trait PackB<E>: Sync {
     /// `ldb` >= nc rounded up to NR: `dst[kk·ldb + j]` = B(p0 + kk, j0 + j), 0 for nc <= j < ldb.
     #[allow(clippy::too_many_arguments)]
     fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize);
+
+    /// The block at depth p0, columns `j0..j0 + ldb`, read where it lies instead of packed: its
+    /// first element and row stride, when B's storage already has the packed layout (row-major,
+    /// unit column stride, all ldb columns present). None: [`PackB::pack`] it.
+    fn in_place(&self, _p0: usize, _j0: usize, _ldb: usize) -> Option<(*const E, usize)> {
+        None
+    }
 }
 
 /// A strided matrix `x[i, j]` = `*(ptr + i·rs + j·cs)` of rows x cols, scaled by `scale` when packed.
@@ -79,6 +86,25 @@ impl<E: Float> PackB<E> for Strided<E> {
         // one panel of width ldb: index j along cs, depth kk along rs
         // SAFETY: the block lies inside `dst` (kc·ldb elements) and the elements read inside the matrix.
         unsafe { panel(plan, kc, nc, ldb, self.at(p0, j0), self.cs, self.rs, self.scale, dst) };
+    }
+}
+
+/// A row-major B (unit column stride) whose blocks the micro-kernel reads in place: those with all
+/// `ldb` columns inside the matrix (a last, narrower block is packed). For operands whose row
+/// stride is short (a few KiB, not a power of two), so the block's rows do not collide in the
+/// caches: the Winograd transforms' V, written just before the GEMM that reads it.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct InPlace<E>(pub Strided<E>);
+
+impl<E: Float> PackB<E> for InPlace<E> {
+    fn pack(&self, plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize) {
+        self.0.pack(plan, p0, kc, j0, nc, dst, ldb)
+    }
+
+    fn in_place(&self, p0: usize, j0: usize, ldb: usize) -> Option<(*const E, usize)> {
+        let b = &self.0;
+        let readable = b.cs == 1 && b.rs > 0 && b.scale == E::one() && j0 + ldb <= b.cols;
+        readable.then(|| (b.at(p0, j0), b.rs as usize))
     }
 }
 

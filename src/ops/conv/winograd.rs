@@ -16,7 +16,7 @@
 //! measures the error against f64.
 
 use super::Geom;
-use crate::gemm::{self, Init, Plan, Prepacked, SourceA, Strided};
+use crate::gemm::{self, InPlace, Init, Plan, Prepacked, SourceA, Strided};
 use crate::{Float, Result};
 use f4_5::Along;
 use lanes::Rows;
@@ -266,7 +266,7 @@ unsafe fn band<F: Float>(scheme: Scheme, plan: &Plan<F>, g: &Geom, xn: &[F], u: 
         }
         for k in 0..xi {
             // M_ξ[outs][tile] = U_ξ[outs, :] · V_ξ
-            let b = Strided { ptr: v[k * g.cin * tiles..].as_ptr(), rows: g.cin, cols: tiles, rs: tiles as isize, cs: 1, scale: F::one() };
+            let b = InPlace(Strided { ptr: v[k * g.cin * tiles..].as_ptr(), rows: g.cin, cols: tiles, rs: tiles as isize, cs: 1, scale: F::one() });
             let c = m[k * outs * tiles..].as_mut_ptr();
             // SAFETY: M_ξ is outs x tiles in this task's buffer; U_ξ has Cout >= t.outs.end rows and
             // V_ξ Cin x tiles, both over Cin.
