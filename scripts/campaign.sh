@@ -3,13 +3,13 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
-#   scripts/campaign.sh cycle [STEPS] [s1|...|s11]
+#   scripts/campaign.sh cycle [STEPS] [s1|...|s12]
 #                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
-#                                     # with stage 1's (default) to 11's settings, from the shipped
+#                                     # with stage 1's (default) to 12's settings, from the shipped
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
-#   scripts/campaign.sh args KIND     # print the training arguments of cycle kind KIND (s1 to s11)
+#   scripts/campaign.sh args KIND     # print the training arguments of cycle kind KIND (s1 to s12)
 #
 # The run uses a snapshot of the package (python/ and the built core) copied to ENGINE, so rebuilding
 # or editing the working tree never changes the code under a running process; `start` refreshes the
@@ -81,7 +81,11 @@ cycle_args() {
     # 11: stage 8 with the water share between stages 6 and 7: every stage-8 cycle gained in air and on the scenes
     # and lost under water, stage 7's seven pairs in ten lost the veiled scenes and the real pairs
     s11) echo "$wide $water_mid --veil 0.35 --spatial-scale -0.3 0.1" ;;
-    *) echo "unknown cycle kind $1 (s1 to s11)" >&2; exit 2 ;;
+    # 12: stage 11 at half its peak LR: its third cycle, from the mean of its first two ends and their starts, gained
+    # nothing at 2e-4 (its end 0.05-0.6 px worse than its start, the mean of the two no better): smaller steps from
+    # the averaged weights, which an LR of 2e-4 throws out of their basin for most of a short cycle
+    s12) echo "${wide/--lr 2e-4/--lr 1e-4} $water_mid --veil 0.35 --spatial-scale -0.3 0.1" ;;
+    *) echo "unknown cycle kind $1 (s1 to s12)" >&2; exit 2 ;;
   esac
 }
 
