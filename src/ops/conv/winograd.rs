@@ -162,34 +162,56 @@ pub(super) fn weight_grad_pays(g: &Geom) -> bool {
     pays(g) && g.cin * g.cout >= MIN_DW_CHANNEL_RATIO * (g.cin + g.cout)
 }
 
+/// Channel pairs per task in the kernel transform ([`weights`]) and its adjoint ([`weight_grad`]):
+/// each task moves its block between the ξ planes and a [pair][ξ] buffer in runs of this length.
+const WEIGHT_BLOCK_PAIRS: usize = 64;
+
 /// The transformed weights: `U_ξ`[o, c] = (transform of `w[o, c]`)[ξ] as one matrix [Cout, Cin]
 /// per ξ, packed for `plan`.
 fn weights<F: Float>(scheme: Scheme, plan: &Plan<F>, w: &[F], cout: usize, cin: usize) -> Vec<Prepacked<F>> {
-    let (xi, taps) = (scheme.xi(), w.len() / (cout * cin).max(1));
-    // t[oc][ξ] for oc = o·Cin + c, pair by pair in parallel
-    let mut t = vec![F::zero(); cout * cin * xi];
-    t.par_chunks_mut(xi).zip(w.par_chunks_exact(taps)).for_each(|(u, wk)| scheme.weight(wk, u));
-    // U_ξ[o, c] = t[(o·Cin + c)·XI + ξ], gathered into a plane and packed, plane by plane in parallel
-    (0..xi)
-        .into_par_iter()
-        .map(|k| {
-            let plane: Vec<F> = t[k..].iter().step_by(xi).copied().collect();
+    let (xi, pairs) = (scheme.xi(), cout * cin);
+    let taps = w.len() / pairs.max(1);
+    // planes[ξ·pairs + oc] for oc = o·Cin + c: blocks of pairs in parallel, each transformed into
+    // its own [pair][ξ] buffer and then copied into every ξ plane as one run of consecutive pairs
+    // (one strided gather per plane instead touched every cache line of the transform 36 times)
+    let mut planes = vec![F::zero(); pairs * xi];
+    let dst = SharedPtr(planes.as_mut_ptr());
+    w.par_chunks(WEIGHT_BLOCK_PAIRS * taps).enumerate().for_each(|(b, wb)| {
+        let n = wb.len() / taps;
+        let mut u = vec![F::zero(); n * xi];
+        for (wk, uk) in wb.chunks_exact(taps).zip(u.chunks_exact_mut(xi)) {
+            scheme.weight(wk, uk);
+        }
+        for k in 0..xi {
+            // the run of plane ξ = k: planes[ξ·pairs + b·BLOCK ..][..n] = u[i·XI + ξ] for i < n
+            // SAFETY: b·BLOCK + n <= pairs and ξ < XI, so the run lies in planes; each run belongs to
+            // the one task of block b, and nothing reads planes until all tasks finish.
+            let run = unsafe { std::slice::from_raw_parts_mut(dst.get().add(k * pairs + b * WEIGHT_BLOCK_PAIRS), n) };
+            for (r, uk) in run.iter_mut().zip(u.chunks_exact(xi)) {
+                *r = uk[k];
+            }
+        }
+    });
+    planes
+        .par_chunks(pairs.max(1))
+        .map(|plane| {
             let view = Strided { ptr: plane.as_ptr(), rows: cout, cols: cin, rs: cin as isize, cs: 1, scale: F::one() };
             Prepacked::new(plan, &view)
         })
         .collect()
 }
 
-/// A pointer to y shared by the tasks, each writing its own (channels x rows) part.
+/// A pointer to an output shared by the tasks, each writing its own elements (y: its (channels x
+/// rows) part; the weight planes: its pairs).
 #[derive(Clone, Copy)]
-struct YPtr<F>(*mut F);
-// SAFETY: tasks write disjoint elements of y (distinct output channels or tile rows) and nothing
-// reads y until all of them have finished.
-unsafe impl<F> Send for YPtr<F> {}
+struct SharedPtr<F>(*mut F);
+// SAFETY: tasks write disjoint elements (distinct output channels or tile rows of y, distinct pairs
+// of the weight planes) and nothing reads them until all of them have finished.
+unsafe impl<F> Send for SharedPtr<F> {}
 // SAFETY: as above.
-unsafe impl<F> Sync for YPtr<F> {}
+unsafe impl<F> Sync for SharedPtr<F> {}
 
-impl<F> YPtr<F> {
+impl<F> SharedPtr<F> {
     /// The pointer (a method, so closures capture the whole Send + Sync wrapper).
     fn get(self) -> *mut F {
         self.0
@@ -235,13 +257,13 @@ pub(super) fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], w: &[F], bia
     let band_tiles = (l2 / (scheme.xi() * std::mem::size_of::<F>() * (g.cin + g.cout))).max(4 * plan.nr);
     let work = tasks(plan, g, tw, th, band_tiles);
     let mut y = Array3::<F>::zeros((g.n, g.cout, g.ho * g.wo));
-    let yp = YPtr(y.as_mut_ptr());
+    let yp = SharedPtr(y.as_mut_ptr());
     work.par_iter().for_each(|t| {
         let xn = &xs[t.n * g.img()..(t.n + 1) * g.img()];
         // SAFETY: y[n] starts n·Cout·Ho·Wo elements in; the task writes only its own part.
         let yn = unsafe { yp.get().add(t.n * g.cout * g.ho * g.wo) };
         // SAFETY: as above.
-        unsafe { band(scheme, plan, g, xn, &u, bias, relu, t, tw, YPtr(yn)) };
+        unsafe { band(scheme, plan, g, xn, &u, bias, relu, t, tw, SharedPtr(yn)) };
     });
     Ok(y)
 }
@@ -252,7 +274,7 @@ pub(super) fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], w: &[F], bia
 /// `yn` is y[n] (Cout x Ho x Wo); no other task writes the task's (channels, rows) part.
 #[allow(clippy::too_many_arguments)]
 unsafe fn band<F: Float>(scheme: Scheme, plan: &Plan<F>, g: &Geom, xn: &[F], u: &[Prepacked<F>], bias: Option<&[F]>,
-                         relu: bool, t: &Task, tw: usize, yn: YPtr<F>) {
+                         relu: bool, t: &Task, tw: usize, yn: SharedPtr<F>) {
     let (tiles, outs, xi) = (t.rows.len() * tw, t.outs.len(), scheme.xi());
     super::with_scratch(xi * tiles * (g.cin + outs), |buf: &mut [F]| {
         let (v, m) = buf.split_at_mut(xi * g.cin * tiles);
@@ -355,8 +377,21 @@ pub(super) fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]
     let mut dw = Array2::<F>::zeros((g.cout, g.cin * taps));
     let pairs = g.cout * g.cin;
     if let Some(d) = dw.as_slice_mut() {
-        // dW[o, c] from dU[o, c] = (dU_ξ[o, c] for every ξ), oc = o·Cin + c
-        d.par_chunks_mut(taps).enumerate().for_each(|(oc, wk)| scheme.weight_grad(|k| du[k * pairs + oc], wk));
+        // dW[o, c] from dU[o, c] = (dU_ξ[o, c] for every ξ), oc = o·Cin + c, by blocks of pairs: each
+        // block first gathers its run of every ξ plane into a [pair][ξ] buffer
+        d.par_chunks_mut(WEIGHT_BLOCK_PAIRS * taps).enumerate().for_each(|(b, dwb)| {
+            let (first, n) = (b * WEIGHT_BLOCK_PAIRS, dwb.len() / taps);
+            let mut block = vec![F::zero(); n * xi];
+            for k in 0..xi {
+                // block[i·XI + ξ] = dU_ξ[first + i], dU_ξ at du[ξ·pairs ..]
+                for (i, &value) in du[k * pairs + first..][..n].iter().enumerate() {
+                    block[i * xi + k] = value;
+                }
+            }
+            for (wk, duk) in dwb.chunks_exact_mut(taps).zip(block.chunks_exact(xi)) {
+                scheme.weight_grad(|k| duk[k], wk);
+            }
+        });
     }
     dw
 }
