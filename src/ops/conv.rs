@@ -664,14 +664,16 @@ fn input_grad_as_conv<F: Float>(run: Conv2dRun<F>, g: &Geom, wm: ArrayView2<F>, 
         return None;
     }
     let taps = g.kh * g.kw;
+    let wm = wm.as_standard_layout();
+    let w = wm.as_slice()?;
     let mut wt = Array2::<F>::zeros((g.cin, g.cout * taps));
-    for (o, wo) in wm.outer_iter().enumerate() {
-        for (c, mut wc) in wt.outer_iter_mut().enumerate() {
+    wt.as_slice_mut()?.par_chunks_mut(g.cout * taps).enumerate().for_each(|(c, row)| {
+        for (o, dst) in row.chunks_exact_mut(taps).enumerate() {
             // W'[c, o·taps + t'] = W[o, c·taps + taps − 1 − t'] (t' = ki'·kw + kj' runs the taps backwards)
-            let (dst, src) = (wc.slice_mut(s![o * taps..(o + 1) * taps]), wo.slice(s![c * taps..(c + 1) * taps]));
-            dst.into_iter().zip(src.iter().rev()).for_each(|(d, &v)| *d = v);
+            let src = &w[(o * g.cin + c) * taps..][..taps];
+            dst.iter_mut().zip(src.iter().rev()).for_each(|(d, &v)| *d = v);
         }
-    }
+    });
     let gt = Geom { n: g.n, cin: g.cout, h: g.ho, w: g.wo, cout: g.cin, kh: g.kh, kw: g.kw, ho: g.h, wo: g.w, stride: [1, 1], pad };
     Some(forward(run, &gt, dy, wt.view(), None, false))
 }
