@@ -595,12 +595,14 @@ fn forward<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, b
     }
     let wpack = Prepacked::new(plan, &strided(wm));
     let tile = forward_tile(g, plan);
-    let mut y = Array3::<F>::zeros((g.n, g.cout, g.pix()));
+    // every element is written by its task's GEMM (Init::Zero or Init::Bias starts each chain), so y
+    // is not zeroed first
+    let mut y = Array3::<F>::uninit((g.n, g.cout, g.pix()));
     y.outer_iter_mut().into_par_iter().enumerate().for_each(|(n, mut yn)| {
         let xn = &xs[n * g.img()..(n + 1) * g.img()];
         yn.axis_chunks_iter_mut(Axis(1), tile).into_par_iter().enumerate().for_each(|(t, mut yt)| {
             let px = t * tile..t * tile + yt.ncols();
-            let (rsc, c) = (yt.strides()[0], yt.as_mut_ptr());
+            let (rsc, c) = (yt.strides()[0], yt.as_mut_ptr().cast::<F>());
             let init = bias.map_or(Init::Zero, |b| Init::Bias(b.as_ptr()));
             // x[n] as [Cin, H·W], columns of the tile (only a pointwise conv's output pixels are input pixels)
             let xt = g.pointwise().then(|| Strided {
@@ -614,7 +616,8 @@ fn forward<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, b
             unsafe { gemm::run(plan, g.cout, px.len(), g.k(), SourceA::Rows(&wpack, 0), b, c, rsc, 1, init, relu) };
         });
     });
-    y.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout)
+    // SAFETY: the tasks' tiles cover every image and pixel, and each GEMM writes all Cout rows of its tile.
+    unsafe { y.assume_init() }.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout)
 }
 
 /// Gradients of `conv2d_fwd` w.r.t. the input, the weight and the bias (only those in `need`).

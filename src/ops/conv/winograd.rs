@@ -256,8 +256,10 @@ pub(super) fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], w: &[F], bia
     let l2 = gemm::cpu_info().l2;
     let band_tiles = (l2 / (scheme.xi() * std::mem::size_of::<F>() * (g.cin + g.cout))).max(4 * plan.nr);
     let work = tasks(plan, g, tw, th, band_tiles);
-    let mut y = Array3::<F>::zeros((g.n, g.cout, g.ho * g.wo));
-    let yp = SharedPtr(y.as_mut_ptr());
+    // every element is written below (all channels, all tile rows, each tile clipped to the image),
+    // so y is not zeroed first
+    let mut y = Array3::<F>::uninit((g.n, g.cout, g.ho * g.wo));
+    let yp = SharedPtr(y.as_mut_ptr().cast::<F>());
     work.par_iter().for_each(|t| {
         let xn = &xs[t.n * g.img()..(t.n + 1) * g.img()];
         // SAFETY: y[n] starts n·Cout·Ho·Wo elements in; the task writes only its own part.
@@ -265,7 +267,9 @@ pub(super) fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], w: &[F], bia
         // SAFETY: as above.
         unsafe { band(scheme, plan, g, xn, &u, bias, relu, t, tw, SharedPtr(yn)) };
     });
-    Ok(y)
+    // SAFETY: the tasks cover every (image, output channel, tile row), and a tile row's output
+    // transform writes each of its pixels.
+    Ok(unsafe { y.assume_init() })
 }
 
 /// One task: input transform of its band into V, the XI GEMMs into M, output transform into y.
