@@ -154,6 +154,7 @@ pub(super) fn pays(g: &Geom) -> bool {
 ///   62-70 -> 45 ms (1.4-1.5x), at 64x128 N=4 16.2-16.7 -> 13.0-13.3 (1.25x), N=2 7.5-10.8 ->
 ///   6.6-7.6 (1.0-1.6x); 96->96 33-34 -> 16-18 (2.0x); 128->94 23.1 -> 12.1-12.7 (1.85x); 64->128
 ///   27.8-28.2 -> 17-22 (1.3-1.6x); 64->32 (21) 0.95-1.3x, 32->64 (21) 1.4-1.5x.
+///
 /// The earlier Zen 4 figures were taken beside a training run; both quiet machines agree on 32.
 const MIN_DW_CHANNEL_RATIO: usize = 32;
 
