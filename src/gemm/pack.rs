@@ -9,6 +9,7 @@
 
 use super::Plan;
 use crate::Float;
+use rayon::prelude::*;
 
 /// The A operand (m x k, broadcast along rows) of one GEMM call.
 #[derive(Clone, Copy)]
@@ -121,13 +122,26 @@ pub(crate) struct Prepacked<E> {
 }
 
 impl<E: Float> Prepacked<E> {
-    /// Packs `a` (m x k) for `plan`.
+    /// Packs `a` (m x k) for `plan`, panel by panel in parallel (the layout of [`Strided::pack_rows`]).
     pub(crate) fn new(plan: &Plan<E>, a: &Strided<E>) -> Self {
-        let mpad = a.rows.div_ceil(plan.mr) * plan.mr;
-        let mut data = vec![E::zero(); mpad * a.cols.max(1)];
-        // SAFETY: `data` has room for mpad·max(k, 1) elements.
-        unsafe { a.pack_rows(plan, 0, a.rows, data.as_mut_ptr()) };
-        Prepacked { data, mpad, mr: plan.mr, kc: plan.kc, k: a.cols }
+        let (mr, k) = (plan.mr, a.cols);
+        let mpad = a.rows.div_ceil(mr) * mr;
+        let mut data = vec![E::zero(); mpad * k.max(1)];
+        if k > 0 && a.rows > 0 {
+            let kcb = plan.kc_for(k);
+            // K block p0 = b·kcb is the b-th run of mpad·kcb elements (the last one mpad·kc), panel p
+            // of it (rows p·MR..) the p-th run of kc·MR elements there
+            data.par_chunks_mut(mpad * kcb).enumerate().for_each(|(b, block)| {
+                let (p0, kc) = (b * kcb, block.len() / mpad);
+                block.par_chunks_mut(kc * mr).enumerate().for_each(|(p, dst)| {
+                    let r0 = p * mr;
+                    // SAFETY: dst holds kc·MR elements; rows r0.. (at most MR, all < a.rows) and
+                    // depths p0..p0 + kc lie inside the matrix.
+                    unsafe { panel(plan, kc, mr.min(a.rows - r0), mr, a.at(r0, p0), a.rs, a.cs, a.scale, dst.as_mut_ptr()) };
+                });
+            });
+        }
+        Prepacked { data, mpad, mr, kc: plan.kc, k }
     }
 
     /// The packed data, after checking it was packed for `plan`'s MR and KC and for depth k, and
