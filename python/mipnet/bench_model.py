@@ -58,8 +58,12 @@ def fma_peak_gflops(threads: int) -> float | None:
     return float(fn(threads)) if fn is not None else None
 
 
-def machine_header(threads: int) -> str:
-    """CPU model, ISA flags, mipnet's kernel ISA and the measured FMA peak."""
+#: Relative change of the FMA peak between a run's start and its end beyond which the table is flagged.
+PEAK_DRIFT = 0.15
+
+
+def machine_header(threads: int, peak: float | None = None) -> str:
+    """CPU model, ISA flags, mipnet's kernel ISA and the FMA peak (``peak``, or measured now)."""
     model, flags, ids = platform.processor() or "unknown CPU", set(), {}
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -78,12 +82,25 @@ def machine_header(threads: int) -> str:
     from . import _core
 
     kernel_isa = getattr(_core, "simd_isa", lambda: "?")()
-    peak = fma_peak_gflops(threads)
+    peak = fma_peak_gflops(threads) if peak is None else peak
     peak_s = f"{peak:.0f} GFLOP/s" if peak is not None else "not measured (needs _core.fma_peak_gflops)"
     if ids:
         model += f" (family {ids.get('cpu family', '?')} model {ids.get('model', '?')})"
     return (f"CPU: {model}, {os.cpu_count()} logical cores; ISA: {' '.join(isa) or 'baseline x86-64'}; "
             f"mipnet kernels: {kernel_isa}; FMA peak at {threads} threads: {peak_s}")
+
+
+def peak_drift_line(start: float | None, end: float | None) -> str:
+    """The FMA peak measured again after the table, beside the header's; flagged when they differ by more
+    than ``PEAK_DRIFT`` (a shared VM whose speed changed during the run: rows measured in different
+    phases do not compare, rounds taken in turns still do)."""
+    if start is None or end is None:
+        return "FMA peak at the end: not measured"
+    line = f"FMA peak at the start {start:.0f}, at the end {end:.0f} GFLOP/s"
+    if abs(end - start) > PEAK_DRIFT * max(start, end):
+        line += (f": the machine's speed changed by more than {PEAK_DRIFT:.0%} during the run; compare engines "
+                 "within a row (they take turns), not rows measured at different times")
+    return line
 
 
 # Runs in the child process: builds the engine from one seeded torch init, times `runs` calls after
@@ -244,7 +261,8 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
         return 1
     missing = [e for e in engines if not _installed(e)]
     engines = [e for e in engines if e not in missing]
-    print(machine_header(threads))
+    peak_start = fma_peak_gflops(threads)
+    print(machine_header(threads, peak_start))
     print(f"MIPNet 6+6 iterations (train rows: as given), {threads} threads everywhere, same weights, inputs and "
           f"initial field; peak = max RSS of a fresh process; seconds of one call after {warmup} untimed"
           + (f", median of {rounds} rounds (engines taking turns)" if rounds > 1 else ""))
@@ -282,6 +300,7 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
             print("engines disagree (see above): no times printed")
             return status
         print(_table(rows))
+        print(peak_drift_line(peak_start, fma_peak_gflops(threads)))
         if profile:
             _profiles(base, sizes, train, threads, tmp)
     return 0
