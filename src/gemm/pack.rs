@@ -71,14 +71,22 @@ impl<E: Float> Strided<E> {
         for p0 in (0..k).step_by(kcb) {
             let kc = kcb.min(k - p0);
             for (p, r0) in (i0..i0 + mc).step_by(mr).enumerate() {
-                // panel p of block p0: rows r0.., index i along rs, depth kk along cs, at p0·mpad + p·kc·MR
-                // SAFETY: the panel lies inside `dst` and the elements read inside the matrix.
-                unsafe {
-                    panel(plan, kc, mr.min(i0 + mc - r0), mr, self.at(r0, p0), self.rs, self.cs, self.scale,
-                          dst.add(p0 * mpad + p * kc * mr))
-                };
+                // panel p of block p0 at p0·mpad + p·kc·MR
+                // SAFETY: the panel lies inside `dst` and rows r0.. < i0 + mc exist.
+                unsafe { self.pack_panel(plan, p0, kc, r0, i0 + mc, dst.add(p0 * mpad + p * kc * mr)) };
             }
         }
+    }
+
+    /// One MR-row panel of the layout of [`Strided::pack_rows`]: rows r0..min(r0 + MR, end) (zero rows
+    /// after) at depths p0..p0 + kc, row index i along rs, depth kk along cs, into `dst` (kc·MR elements).
+    ///
+    /// # Safety
+    /// `dst` has room for kc·MR elements; rows r0..min(r0 + MR, end) and depths p0..p0 + kc exist.
+    unsafe fn pack_panel(&self, plan: &Plan<E>, p0: usize, kc: usize, r0: usize, end: usize, dst: *mut E) {
+        let mr = plan.mr;
+        // SAFETY: forwarded contract.
+        unsafe { panel(plan, kc, mr.min(end - r0), mr, self.at(r0, p0), self.rs, self.cs, self.scale, dst) };
     }
 }
 
@@ -134,10 +142,8 @@ impl<E: Float> Prepacked<E> {
             data.par_chunks_mut(mpad * kcb).enumerate().for_each(|(b, block)| {
                 let (p0, kc) = (b * kcb, block.len() / mpad);
                 block.par_chunks_mut(kc * mr).enumerate().for_each(|(p, dst)| {
-                    let r0 = p * mr;
-                    // SAFETY: dst holds kc·MR elements; rows r0.. (at most MR, all < a.rows) and
-                    // depths p0..p0 + kc lie inside the matrix.
-                    unsafe { panel(plan, kc, mr.min(a.rows - r0), mr, a.at(r0, p0), a.rs, a.cs, a.scale, dst.as_mut_ptr()) };
+                    // SAFETY: dst holds kc·MR elements; rows p·MR.. < a.rows and depths p0..p0 + kc exist.
+                    unsafe { a.pack_panel(plan, p0, kc, p * mr, a.rows, dst.as_mut_ptr()) };
                 });
             });
         }

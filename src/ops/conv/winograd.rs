@@ -177,9 +177,8 @@ fn weights<F: Float>(scheme: Scheme, plan: &Plan<F>, w: &[F], cout: usize, cin: 
     // (one strided gather per plane instead touched every cache line of the transform 36 times)
     let mut planes = vec![F::zero(); pairs * xi];
     let dst = SharedPtr(planes.as_mut_ptr());
-    w.par_chunks(WEIGHT_BLOCK_PAIRS * taps).enumerate().for_each(|(b, wb)| {
+    w.par_chunks(WEIGHT_BLOCK_PAIRS * taps).enumerate().for_each_init(|| vec![F::zero(); WEIGHT_BLOCK_PAIRS * xi], |u, (b, wb)| {
         let n = wb.len() / taps;
-        let mut u = vec![F::zero(); n * xi];
         for (wk, uk) in wb.chunks_exact(taps).zip(u.chunks_exact_mut(xi)) {
             scheme.weight(wk, uk);
         }
@@ -384,9 +383,8 @@ pub(super) fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]
     if let Some(d) = dw.as_slice_mut() {
         // dW[o, c] from dU[o, c] = (dU_ξ[o, c] for every ξ), oc = o·Cin + c, by blocks of pairs: each
         // block first gathers its run of every ξ plane into a [pair][ξ] buffer
-        d.par_chunks_mut(WEIGHT_BLOCK_PAIRS * taps).enumerate().for_each(|(b, dwb)| {
+        d.par_chunks_mut(WEIGHT_BLOCK_PAIRS * taps).enumerate().for_each_init(|| vec![F::zero(); WEIGHT_BLOCK_PAIRS * xi], |block, (b, dwb)| {
             let (first, n) = (b * WEIGHT_BLOCK_PAIRS, dwb.len() / taps);
-            let mut block = vec![F::zero(); n * xi];
             for k in 0..xi {
                 // block[i·XI + ξ] = dU_ξ[first + i], dU_ξ at du[ξ·pairs ..]
                 for (i, &value) in du[k * pairs + first..][..n].iter().enumerate() {
