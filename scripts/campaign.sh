@@ -3,13 +3,13 @@
 # background at the lowest priority, resumed across sessions.
 #
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
-#   scripts/campaign.sh cycle [STEPS] [s1|...|s12]
+#   scripts/campaign.sh cycle [STEPS] [s1|...|s13]
 #                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
 #                                     # with stage 1's (default) to 12's settings, from the shipped
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
-#   scripts/campaign.sh args KIND     # print the training arguments of cycle kind KIND (s1 to s12)
+#   scripts/campaign.sh args KIND     # print the training arguments of cycle kind KIND (s1 to s13)
 #
 # The run uses a snapshot of the package (python/ and the built core) copied to ENGINE, so rebuilding
 # or editing the working tree never changes the code under a running process; `start` refreshes the
@@ -85,7 +85,10 @@ cycle_args() {
     # nothing at 2e-4 (its end 0.05-0.6 px worse than its start, the mean of the two no better): smaller steps from
     # the averaged weights, which an LR of 2e-4 throws out of their basin for most of a short cycle
     s12) echo "${wide/--lr 2e-4/--lr 1e-4} $water_mid --veil 0.35 --spatial-scale -0.3 0.1" ;;
-    *) echo "unknown cycle kind $1 (s1 to s12)" >&2; exit 2 ;;
+    # 13: stage 12 with seven pairs in ten under water (stage 7's mix, with the veil and the scale augmentation that
+    # stage 7 lacked at first): both stage-12 cycles gained in air and on the scenes and lost in turbid water
+    s13) echo "${wide/--lr 2e-4/--lr 1e-4} $water_heavy --veil 0.35 --spatial-scale -0.3 0.1" ;;
+    *) echo "unknown cycle kind $1 (s1 to s13)" >&2; exit 2 ;;
   esac
 }
 
