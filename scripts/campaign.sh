@@ -5,7 +5,7 @@
 #   scripts/campaign.sh start STAGE   # start STAGE (or resume it if its run folder has a checkpoint)
 #   scripts/campaign.sh cycle [STEPS] [s1|...|s13]
 #                                     # one session's cycle: a new one-cycle run of STEPS (default 1000)
-#                                     # with stage 1's (default) to 12's settings, from the shipped
+#                                     # with stage 1's (default) to 13's settings, from the shipped
 #                                     # weights (or INIT=weights.safetensors), in train/cycle-DATE
 #   scripts/campaign.sh stop          # SIGTERM: the run checkpoints after its current step and exits
 #   scripts/campaign.sh status        # last log lines and validation of the running stage
