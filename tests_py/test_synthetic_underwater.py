@@ -13,7 +13,9 @@ from mipnet.underwater import (
     degrade,
     linear_to_srgb,
     srgb_to_linear,
+    texture_snr,
 )
+from mipnet.errors import ArgumentError, ShapeError
 
 
 def require_cv2():
@@ -159,6 +161,48 @@ def test_degrade_handles_invalid_disparity(pair):
     disparity[10:20] = np.nan
     left, right = degrade(pair["left"], pair["right"], disparity, "turbid", seed=0)
     assert left.shape == (96, 128, 3)
+
+
+def _detail(image):
+    """Luminance minus its 9x9 box mean (the fine detail, as texture_snr's blur of sigma 3 px), from row and column 1."""
+    linear = srgb_to_linear(image).mean(axis=2)
+    blur = np.cumsum(np.cumsum(np.pad(linear, 4, mode="edge"), 0), 1)
+    # 9x9 box sum over padded rows i+1..i+9 (image row i+1) from the summed-area table: S[i+9] - S[i], per axis
+    box = (blur[9:, 9:] - blur[:-9, 9:] - blur[9:, :-9] + blur[:-9, :-9]) / 81.0
+    return linear[1:, 1:] - box
+
+
+@pytest.mark.parametrize("seed", [5, 7])
+@pytest.mark.parametrize("preset", ["turbid", "low_light"])
+def test_texture_snr_says_where_two_noise_draws_agree(seed, preset):
+    # What two cameras can match is the detail that repeats across independent noise draws: where the SNR
+    # is high the degraded views' detail agrees between draws, where it is far below 1 it does not.
+    pair = make_pair(96, 128, seed=seed)
+    snr = texture_snr(pair["left"], pair["disparity"], preset)[1:, 1:]
+    one, _ = degrade(pair["left"], pair["right"], pair["disparity"], preset, seed=0)
+    two, _ = degrade(pair["left"], pair["right"], pair["disparity"], preset, seed=1)
+    a, b = _detail(one), _detail(two)
+    seen, hidden = snr > 3, snr < 0.3
+    assert seen.sum() > 500 and hidden.sum() > 500
+    assert np.corrcoef(a[seen], b[seen])[0, 1] > 0.5
+    assert abs(np.corrcoef(a[hidden], b[hidden])[0, 1]) < 0.1
+
+
+def test_texture_snr_falls_with_range_and_needs_texture(pair):
+    near, far = np.full((96, 128), 24.0), np.full((96, 128), 4.0)
+    assert np.median(texture_snr(pair["left"], near, "turbid")) > 4 * np.median(texture_snr(pair["left"], far, "turbid"))
+    assert np.median(texture_snr(pair["left"], near, "clear")) > 10
+    flat = np.full_like(pair["left"], 120)
+    assert texture_snr(flat, near, "clear").max() < 1e-3
+    more_light = texture_snr(pair["left"], far, "low_light", full_well=3000.0)
+    assert np.median(more_light) > np.median(texture_snr(pair["left"], far, "low_light"))
+
+
+def test_texture_snr_rejects_bad_input(pair):
+    with pytest.raises(ShapeError, match=r"texture_snr.*\(96, 128, 3\).*\(10, 128\)"):
+        texture_snr(pair["left"], pair["disparity"][:10])
+    with pytest.raises(ArgumentError, match="texture_snr: window"):
+        texture_snr(pair["left"], pair["disparity"], window=4)
 
 
 def test_srgb_round_trip():

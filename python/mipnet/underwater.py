@@ -32,10 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ArgumentError
+from .errors import ArgumentError, ShapeError
 from .random import log_uniform
 
-__all__ = ["degrade", "random_water", "WaterParams", "PRESETS", "JERLOV_KD", "srgb_to_linear", "linear_to_srgb"]
+__all__ = ["degrade", "texture_snr", "random_water", "WaterParams", "PRESETS", "JERLOV_KD", "srgb_to_linear", "linear_to_srgb"]
 
 # Jerlov diffuse attenuation K_d (1/m) at 650 nm (R), 550 nm (G), 450 nm (B).
 JERLOV_KD: dict[str, tuple[float, float, float]] = {
@@ -509,3 +509,59 @@ def degrade(left, right, disparity, preset="coastal", seed: int = 0, **params):
         exposed = _render_snow(radiance * exposure, particles, shift, _view_geometry(depth, fx)[0])
         outputs.append(_sensor(rng, exposed * water.gain, water))
     return outputs[0], outputs[1]
+
+
+def texture_snr(left, disparity, preset="coastal", window: int = 9, texture_sigma: float = 3.0, **params) -> np.ndarray:
+    """How visible the scene's texture stays in the degraded left view: per pixel, the signal-to-noise
+    ratio of the texture carried by the direct signal, summed over a square window.
+
+    The texture is what a blur of ``texture_sigma`` px removes from the clean image (fine detail and
+    edges, the part stereo matching uses). With s_c the texture's share of the exposed, gained radiance
+    of channel c (the same water, exposure and gain as :func:`degrade`, no marine snow) and sigma_c the
+    standard deviation of that pixel's sensor noise, the ratio is the matched-filter SNR over the window:
+
+        SNR = sqrt( sum over the window and the channels of s_c^2 / sigma_c^2 )
+
+    Below about 1 the texture is lost in the noise, and where it covers a whole surface the surface's
+    disparity cannot be found by matching at all, only guessed from its surroundings.
+
+    Parameters
+    ----------
+    left : array_like of uint8
+        Clean (in-air) sRGB left image.
+    disparity : array_like
+        Its disparity in px (as :func:`degrade`).
+    preset, **params
+        The water, as :func:`degrade`.
+    window : int
+        Side of the square window (odd, px).
+    texture_sigma : float
+        Sigma of the blur that separates texture from shading (px).
+
+    Shapes
+    ------
+    left: (H, W, 3); disparity: (H, W); returns: (H, W) float32.
+    """
+    water = _resolve_params(preset, params)
+    left = np.asarray(left)
+    disp = np.asarray(disparity, dtype=np.float64)
+    if left.ndim != 3 or left.shape[2] != 3 or disp.shape != left.shape[:2]:
+        raise ShapeError(f"texture_snr: expected an (H, W, 3) image and an (H, W) disparity, got {left.shape}, {disp.shape}")
+    if window < 1 or window % 2 == 0:
+        raise ArgumentError(f"texture_snr: window must be a positive odd number, got {window}")
+    width = left.shape[1]
+    fx = water.fx if water.fx is not None else _REFERENCE_FX * width / _REFERENCE_WIDTH
+    depth = _depth_from_disparity(disp, fx, water)
+    clean = srgb_to_linear(left)
+    radiance = _radiance(clean, depth, fx, water)
+    shading = _radiance(_gaussian_blur(clean, texture_sigma), depth, fx, water)
+    scale = _auto_exposure(radiance) * water.gain
+    signal = (radiance - shading) * scale
+    # Poisson-Gaussian noise of _sensor: variance = mean / full_well + read_noise^2 (linear units).
+    noise_var = np.clip(radiance * scale, 0.0, None) / water.full_well + water.read_noise**2
+    ratio = (signal**2 / noise_var).sum(axis=2)
+    # The window sum is the box mean times its area.
+    box = np.ones(window, dtype=np.float32) / window
+    summed = _convolve_axis(_convolve_axis(ratio.astype(np.float32), box, 0), box, 1) * window**2
+    return np.sqrt(np.clip(summed, 0.0, None)).astype(np.float32)
+
