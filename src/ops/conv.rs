@@ -669,14 +669,19 @@ fn input_grad_as_conv<F: Float>(run: Conv2dRun<F>, g: &Geom, wm: ArrayView2<F>, 
     let taps = g.kh * g.kw;
     let wm = wm.as_standard_layout();
     let w = wm.as_slice()?;
-    let mut wt = Array2::<F>::zeros((g.cin, g.cout * taps));
+    // every element is written below, so W' is not zeroed first (a fresh zeroed block costs page faults)
+    let mut wt = Array2::<F>::uninit((g.cin, g.cout * taps));
     wt.as_slice_mut()?.par_chunks_mut(g.cout * taps).enumerate().for_each(|(c, row)| {
         for (o, dst) in row.chunks_exact_mut(taps).enumerate() {
             // W'[c, o·taps + t'] = W[o, c·taps + taps − 1 − t'] (t' = ki'·kw + kj' runs the taps backwards)
             let src = &w[(o * g.cin + c) * taps..][..taps];
-            dst.iter_mut().zip(src.iter().rev()).for_each(|(d, &v)| *d = v);
+            dst.iter_mut().zip(src.iter().rev()).for_each(|(d, &v)| {
+                d.write(v);
+            });
         }
     });
+    // SAFETY: the rows cover W' and each row's Cout chunks of `taps` values are all written.
+    let wt = unsafe { wt.assume_init() };
     let gt = Geom { n: g.n, cin: g.cout, h: g.ho, w: g.wo, cout: g.cin, kh: g.kh, kw: g.kw, ho: g.h, wo: g.w, stride: [1, 1], pad };
     Some(forward(run, &gt, dy, wt.view(), None, false))
 }

@@ -22,6 +22,7 @@ use f4_5::Along;
 use lanes::Rows;
 use ndarray::{Array2, Array3};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use std::ops::Range;
 
 mod f4_5;
@@ -175,7 +176,11 @@ fn weights<F: Float>(scheme: Scheme, plan: &Plan<F>, w: &[F], cout: usize, cin: 
     // planes[ξ·pairs + oc] for oc = o·Cin + c: blocks of pairs in parallel, each transformed into
     // its own [pair][ξ] buffer and then copied into every ξ plane as one run of consecutive pairs
     // (one strided gather per plane instead touched every cache line of the transform 36 times)
-    let mut planes = vec![F::zero(); pairs * xi];
+    // every run of every plane is written below, so the planes are not zeroed first (a serial pass
+    // over up to tens of MB)
+    let mut planes = Vec::<MaybeUninit<F>>::with_capacity(pairs * xi);
+    // SAFETY: MaybeUninit elements need no initialisation; the capacity is pairs·XI.
+    unsafe { planes.set_len(pairs * xi) };
     let dst = SharedPtr(planes.as_mut_ptr());
     w.par_chunks(WEIGHT_BLOCK_PAIRS * taps).enumerate().for_each_init(|| vec![F::zero(); WEIGHT_BLOCK_PAIRS * xi], |u, (b, wb)| {
         let n = wb.len() / taps;
@@ -188,14 +193,15 @@ fn weights<F: Float>(scheme: Scheme, plan: &Plan<F>, w: &[F], cout: usize, cin: 
             // the one task of block b, and nothing reads planes until all tasks finish.
             let run = unsafe { std::slice::from_raw_parts_mut(dst.get().add(k * pairs + b * WEIGHT_BLOCK_PAIRS), n) };
             for (r, uk) in run.iter_mut().zip(u.chunks_exact(xi)) {
-                *r = uk[k];
+                r.write(uk[k]);
             }
         }
     });
     planes
         .par_chunks(pairs.max(1))
         .map(|plane| {
-            let view = Strided { ptr: plane.as_ptr(), rows: cout, cols: cin, rs: cin as isize, cs: 1, scale: F::one() };
+            // the plane was written in full above (MaybeUninit<F> has the layout of F)
+            let view = Strided { ptr: plane.as_ptr().cast::<F>(), rows: cout, cols: cin, rs: cin as isize, cs: 1, scale: F::one() };
             Prepacked::new(plan, &view)
         })
         .collect()
@@ -333,7 +339,10 @@ pub(super) fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]
     let chunk_rows = (DW_CHUNK_BYTES / row_bytes).max(1).min(g.n * th);
     let mut v = vec![F::zero(); g.cin * xi * chunk_rows * tw];
     let mut dm = vec![F::zero(); g.cout * xi * chunk_rows * tw];
-    let mut du = vec![F::zero(); xi * g.cout * g.cin];
+    // the first chunk's GEMMs overwrite every dU_ξ (Init::Zero), so dU is not zeroed first
+    let mut du = Vec::<MaybeUninit<F>>::with_capacity(xi * g.cout * g.cin);
+    // SAFETY: MaybeUninit elements need no initialisation; the capacity is XI·Cout·Cin.
+    unsafe { du.set_len(xi * g.cout * g.cin) };
     for (ci, r0) in (0..g.n * th).step_by(chunk_rows).enumerate() {
         let chunk = r0..(r0 + chunk_rows).min(g.n * th);
         let tiles = chunk.len() * tw;
@@ -375,15 +384,20 @@ pub(super) fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]
             let a = Strided { ptr: ms[k * tiles..].as_ptr(), rows: g.cout, cols: tiles, rs: (xi * tiles) as isize, cs: 1, scale: F::one() };
             let b = Strided { ptr: vs[k * tiles..].as_ptr(), rows: tiles, cols: g.cin, rs: 1, cs: (xi * tiles) as isize, scale: F::one() };
             // SAFETY: dU_ξ is this task's own Cout x Cin plane; A and B lie inside the chunk's dM and V.
-            unsafe { gemm::run(plan, g.cout, g.cin, tiles, SourceA::Strided(&a), &b, duk.as_mut_ptr(), g.cin as isize, 1, init, false) };
+            unsafe { gemm::run(plan, g.cout, g.cin, tiles, SourceA::Strided(&a), &b, duk.as_mut_ptr().cast::<F>(), g.cin as isize, 1, init, false) };
         });
     }
-    let mut dw = Array2::<F>::zeros((g.cout, g.cin * taps));
+    // SAFETY: every element of dU was written by the first chunk's GEMMs (MaybeUninit<F> has the layout of F).
+    let du = unsafe { std::slice::from_raw_parts(du.as_ptr().cast::<F>(), du.len()) };
+    let mut dw = Array2::<F>::uninit((g.cout, g.cin * taps));
     let pairs = g.cout * g.cin;
-    if let Some(d) = dw.as_slice_mut() {
+    {
+        let d = dw.as_slice_mut().expect("a new array is contiguous");
         // dW[o, c] from dU[o, c] = (dU_ξ[o, c] for every ξ), oc = o·Cin + c, by blocks of pairs: each
         // block first gathers its run of every ξ plane into a [pair][ξ] buffer
         d.par_chunks_mut(WEIGHT_BLOCK_PAIRS * taps).enumerate().for_each_init(|| vec![F::zero(); WEIGHT_BLOCK_PAIRS * xi], |block, (b, dwb)| {
+            // zeroed in cache, then every value written by the adjoint transform below
+            let dwb = crate::tensor::zeroed(dwb);
             let (first, n) = (b * WEIGHT_BLOCK_PAIRS, dwb.len() / taps);
             for k in 0..xi {
                 // block[i·XI + ξ] = dU_ξ[first + i], dU_ξ at du[ξ·pairs ..]
@@ -396,6 +410,7 @@ pub(super) fn weight_grad<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], dy: &[F]
             }
         });
     }
-    dw
+    // SAFETY: the blocks cover dW and each was zeroed, then written, by its task.
+    unsafe { dw.assume_init() }
 }
 
