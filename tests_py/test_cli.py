@@ -64,6 +64,33 @@ def test_infer_scale_writes_a_full_size_disparity_in_input_pixels(tmp_path):
     np.testing.assert_array_equal(disp, expected)
 
 
+def test_infer_min_confidence_marks_the_unbacked_pixels_invalid_everywhere(pairs_dir, tmp_path):
+    calib = tmp_path / "K.txt"
+    calib.write_text("300 0 32 0 300 24 0 0 1\n0.1\n")
+    left, right = pairs_dir / "scene0_left.png", pairs_dir / "scene0_right.png"
+    out = tmp_path / "out"
+    assert main(["infer", "-l", str(left), "-r", str(right), "-o", str(out), "--iters", "1", "1",
+                 "--calib", str(calib), "--min-confidence", "0.5"]) == 0
+    raw = mipnet.MIPNet.pretrained()(io.read_image(left), io.read_image(right), iters=(1, 1))
+    confidence = np.load(out / "scene0_left_conf.npy")
+    np.testing.assert_array_equal(confidence, mipnet.match_confidence(io.read_image(left), io.read_image(right), raw))
+    kept = confidence >= 0.5
+    assert 0 < kept.sum() < kept.size
+    disp = np.load(out / "scene0_left_disp.npy")
+    np.testing.assert_array_equal(disp[kept], raw[kept])
+    assert np.isinf(disp[~kept]).all() and np.isinf(io.read_pfm(out / "scene0_left_disp.pfm")[~kept]).all()
+    assert np.isinf(np.load(out / "scene0_left_depth.npy")[~kept]).all()
+    assert (io.read_image(out / "scene0_left_disp.png")[~kept] == 0).all()
+    assert io.read_image(out / "scene0_left_conf.png").shape == (48, 64, 3)
+
+
+def test_infer_confidence_alone_writes_the_map_and_keeps_every_pixel(pairs_dir, tmp_path):
+    args = ["infer", "-l", str(pairs_dir / "scene0_left.png"), "-r", str(pairs_dir / "scene0_right.png"),
+            "-o", str(tmp_path), "--iters", "1", "1"]
+    assert main(args + ["--confidence"]) == 0
+    assert (tmp_path / "scene0_left_conf.npy").exists() and np.isfinite(np.load(tmp_path / "scene0_left_disp.npy")).all()
+
+
 def test_an_installation_without_weights_says_it_runs_untrained(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(mipnet.pretrained, "PRETRAINED_PATH", tmp_path / "absent.safetensors")
     assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1"]) == 0

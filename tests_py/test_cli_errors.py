@@ -74,6 +74,8 @@ CASES = {
                     ["--scale", "positive number, got 0"]),
     "--scale too small": (lambda f: infer(f, "scene0_left.png", "scene0_right.png", "--scale", "0.01"), "infer",
                           ["scale 0.01", "smaller than 32x32"]),
+    "bad --min-confidence": (lambda f: infer(f, "scene0_left.png", "scene0_right.png", "--min-confidence", "1.5"), "infer",
+                             ["--min-confidence", "must be in (0, 1], got 1.5"]),
     "bad --threads": (lambda f: ["--threads", "0", "info"], None, ["--threads", "positive integer, got 0"]),
     "unknown option": (lambda f: ["info", "--bogus"], "info", ["unrecognized arguments: --bogus"]),
     "non-integer": (lambda f: ["info", "--batch", "two"], "info", ["--batch", "'two'"]),

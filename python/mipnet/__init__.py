@@ -15,7 +15,8 @@ from .autograd import enable_grad, is_grad_enabled, no_grad
 from .tensor import Tensor, tensor
 from . import ops
 from . import nn, optim, losses
-from . import data, geometry, io, metrics, pretrained, training, underwater, utils, viz
+from . import confidence, data, geometry, io, metrics, pretrained, training, underwater, utils, viz
+from .confidence import match_confidence
 from .model import MIPNet, MIPNetConfig, load
 from .random import manual_seed
 
@@ -35,5 +36,5 @@ def get_num_threads() -> int:
 # A forked child has none of the parent's pool threads: rebuild the pool there on first use.
 _os.register_at_fork(after_in_child=_core._reset_after_fork)
 
-__all__ = ["MIPNet", "MIPNetConfig", "load", "manual_seed", "nn", "optim", "losses", "data", "geometry", "io", "metrics", "pretrained", "training", "underwater", "utils", "viz", "Tensor", "tensor", "no_grad", "enable_grad", "is_grad_enabled", "ops", "errors",
+__all__ = ["MIPNet", "MIPNetConfig", "load", "manual_seed", "nn", "optim", "losses", "confidence", "match_confidence", "data", "geometry", "io", "metrics", "pretrained", "training", "underwater", "utils", "viz", "Tensor", "tensor", "no_grad", "enable_grad", "is_grad_enabled", "ops", "errors",
            "set_num_threads", "get_num_threads", "__version__"]

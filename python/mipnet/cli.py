@@ -164,6 +164,7 @@ def read_pair(left_path: str, right_path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def cmd_infer(args: argparse.Namespace) -> int:
     from . import geometry, io, viz
+    from .confidence import match_confidence
 
     if (args.left is None) != (args.right is None):
         raise ArgumentError("give both -l/--left and -r/--right, or neither (bundled example pair)")
@@ -184,6 +185,13 @@ def cmd_infer(args: argparse.Namespace) -> int:
         left, right = images or read_pair(lp, rp)
         disp = model(left, right, iters=tuple(args.iters), seed=args.seed, scale=args.scale)
         stem = out / Path(lp).stem
+        if args.confidence or args.min_confidence is not None:
+            confidence = match_confidence(left, right, disp)
+            _write_npy(f"{stem}_conf.npy", confidence)
+            io.write_image(f"{stem}_conf.png", viz.colorize(confidence, vmin=0.0, vmax=1.0, cmap="gray"))
+            if args.min_confidence is not None:
+                # pixels the images do not back are invalid (inf, the Middlebury convention)
+                disp = np.where(confidence >= args.min_confidence, disp, np.float32(np.inf))
         _write_npy(f"{stem}_disp.npy", disp)
         io.write_pfm(f"{stem}_disp.pfm", disp)
         io.write_image(f"{stem}_disp.png", viz.colorize(disp, vmin=args.vmin, vmax=args.vmax))
@@ -373,6 +381,13 @@ def positive_float(text: str) -> float:
     return value
 
 
+def unit_fraction(text: str) -> float:
+    value = float(text)
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1], got {text}")
+    return value
+
+
 class Iters(argparse.Action):
     """``--iters N16 N4``: N16 >= 1 iterations at 1/16, N4 >= 0 at 1/4."""
 
@@ -414,6 +429,14 @@ def build_parser() -> argparse.ArgumentParser:
     inf.add_argument("--scale", type=positive_float, default=1.0,
                      help="resize the pair by this factor before the network, the disparity back (default 1; "
                           "e.g. 0.5 for photographs whose disparities exceed ~160 px)")
+    inf.add_argument("--confidence", action="store_true",
+                     help="also write the match confidence (NAME_conf.npy / .png): near 1 where both views show the "
+                          "same texture at the disparity, near 0 where the disparity is a guess (open water, sky, "
+                          "occlusions)")
+    inf.add_argument("--min-confidence", type=unit_fraction, default=None, metavar="C",
+                     help="mark pixels whose match confidence is below C invalid (inf in .npy/.pfm, black in .png, "
+                          "no depth or point); 0.5 keeps ~97%% of the pixels in air and drops open water under a "
+                          "veil (docs/training.md); implies --confidence")
     inf.set_defaults(func=cmd_infer)
 
     info = sub.add_parser("info", help="config, parameter counts per module, thread count, memory estimates")

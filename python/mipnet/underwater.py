@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ArgumentError, ShapeError
+from .filters import box_sum, gaussian_blur
 from .random import log_uniform
 
 __all__ = ["degrade", "texture_snr", "random_water", "WaterParams", "PRESETS", "JERLOV_KD", "srgb_to_linear", "linear_to_srgb"]
@@ -328,41 +329,6 @@ def _view_geometry(depth: np.ndarray, fx: float) -> tuple[np.ndarray, np.ndarray
 # ----------------------------------------------------------------------------------- blurring
 
 
-def _gaussian_kernel(sigma: float) -> np.ndarray:
-    radius = max(1, int(np.ceil(3.0 * sigma)))
-    x = np.arange(-radius, radius + 1, dtype=np.float64)
-    kernel = np.exp(-0.5 * (x / sigma) ** 2)
-    return (kernel / kernel.sum()).astype(np.float32)
-
-
-def _convolve_axis(image: np.ndarray, kernel: np.ndarray, axis: int) -> np.ndarray:
-    radius = len(kernel) // 2
-    pad = [(0, 0)] * image.ndim
-    pad[axis] = (radius, radius)
-    padded = np.pad(image, pad, mode="reflect" if image.shape[axis] > radius else "edge")
-    out = np.zeros_like(image)
-    length = image.shape[axis]
-    for k, weight in enumerate(kernel):
-        window = [slice(None)] * image.ndim
-        window[axis] = slice(k, k + length)
-        out += weight * padded[tuple(window)]
-    return out
-
-
-def _gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
-    """Separable Gaussian blur (reflect borders) over the first two axes.
-
-    Shapes
-    ------
-    image: (H, W) or (H, W, C); return: same shape, float32.
-    """
-    image = np.asarray(image, dtype=np.float32)
-    if sigma <= 0:
-        return image.copy()
-    kernel = _gaussian_kernel(sigma)
-    return _convolve_axis(_convolve_axis(image, kernel, 0), kernel, 1)
-
-
 def _range_blur(image: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """Blur whose sigma varies per pixel: linear blend between the two nearest of a few blur levels."""
     top = float(sigma.max())
@@ -374,7 +340,7 @@ def _range_blur(image: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     blurred = [image]
     for previous, current in zip(levels[:-1], levels[1:]):
         # Blurring by sqrt(current^2 - previous^2) turns level sigma `previous` into `current`.
-        blurred.append(_gaussian_blur(blurred[-1], float(np.sqrt(current**2 - previous**2))))
+        blurred.append(gaussian_blur(blurred[-1], float(np.sqrt(current**2 - previous**2))))
     out = np.zeros_like(image)
     for lower, upper, low_img, high_img in zip(levels[:-1], levels[1:], blurred[:-1], blurred[1:]):
         t = np.clip((sigma - lower) / (upper - lower), 0.0, 1.0)
@@ -448,7 +414,7 @@ def _render_snow(image: np.ndarray, particles, x_offset: np.ndarray, scene_range
         impulses = np.zeros((height, width), dtype=np.float32)
         # A blob of peak b needs impulse weight b * 2 pi sigma^2 before the Gaussian blur.
         np.add.at(impulses, (row[group], col[group]), brightness[group] * 2 * np.pi * group_sigma**2)
-        out += _gaussian_blur(impulses, group_sigma)[..., None]
+        out += gaussian_blur(impulses, group_sigma)[..., None]
     return out
 
 
@@ -554,14 +520,12 @@ def texture_snr(left, disparity, preset="coastal", window: int = 9, texture_sigm
     depth = _depth_from_disparity(disp, fx, water)
     clean = srgb_to_linear(left)
     radiance = _radiance(clean, depth, fx, water)
-    shading = _radiance(_gaussian_blur(clean, texture_sigma), depth, fx, water)
+    shading = _radiance(gaussian_blur(clean, texture_sigma), depth, fx, water)
     scale = _auto_exposure(radiance) * water.gain
     signal = (radiance - shading) * scale
     # Poisson-Gaussian noise of _sensor: variance = mean / full_well + read_noise^2 (linear units).
     noise_var = np.clip(radiance * scale, 0.0, None) / water.full_well + water.read_noise**2
     ratio = (signal**2 / noise_var).sum(axis=2)
-    # The window sum is the box mean times its area.
-    box = np.ones(window, dtype=np.float32) / window
-    summed = _convolve_axis(_convolve_axis(ratio.astype(np.float32), box, 0), box, 1) * window**2
+    summed = box_sum(ratio, window)
     return np.sqrt(np.clip(summed, 0.0, None)).astype(np.float32)
 

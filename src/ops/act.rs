@@ -7,10 +7,9 @@
 //! | tanh | tanh(x) | g * (1 - y^2) |
 
 use super::lanes::{self, multiversion};
-use crate::tensor::{check_same_shape, zeroed};
+use crate::tensor::{check_same_shape, par_filled_in, zeroed};
 use crate::{Error, Float, Result};
 use ndarray::{ArrayD, ArrayViewD};
-use rayon::prelude::*;
 
 /// Elements per parallel task.
 const CHUNK: usize = 1 << 14;
@@ -68,17 +67,17 @@ multiversion! {
     }
 }
 
-/// y = act(x), any shape.
+/// y = act(x), any shape. Errors as [`crate::tensor::zeros`] for shapes too large to allocate.
 ///
 /// Torch: `F.relu(x)`, `torch.sigmoid(x)`, `torch.tanh(x)`.
-pub fn unary_fwd<F: Float>(act: Act, x: ArrayViewD<F>) -> ArrayD<F> {
+pub fn unary_fwd<F: Float>(act: Act, x: ArrayViewD<F>) -> Result<ArrayD<F>> {
     let x = x.as_standard_layout();
+    let xs = x.as_slice().expect("standard layout");
     // each chunk is zeroed in cache by its task and then overwritten (no serial zeroing pass first)
-    let mut y = ArrayD::<F>::uninit(x.raw_dim());
-    let (ys, xs) = (y.as_slice_mut().expect("fresh array"), x.as_slice().expect("standard layout"));
-    ys.par_chunks_mut(CHUNK).zip(xs.par_chunks(CHUNK)).for_each(|(yc, xc)| act_run(act, zeroed(yc), xc));
-    // SAFETY: the chunks cover y and each was written in full.
-    unsafe { y.assume_init() }
+    par_filled_in(act.name(), x.shape(), CHUNK, |start, yc| {
+        let end = start + yc.len();
+        act_run(act, zeroed(yc), &xs[start..end])
+    })
 }
 
 /// dx = g * act'(x), computed from y = act(x).
@@ -88,10 +87,10 @@ pub fn unary_fwd<F: Float>(act: Act, x: ArrayViewD<F>) -> ArrayD<F> {
 pub fn unary_bwd<F: Float>(act: Act, y: ArrayViewD<F>, g: ArrayViewD<F>) -> Result<ArrayD<F>> {
     check_same_shape(act.name(), ("output", y.shape()), ("grad_output", g.shape()))?;
     let (y, g) = (y.as_standard_layout(), g.as_standard_layout());
-    // as in unary_fwd: no serial zeroing pass first
-    let mut dx = ArrayD::<F>::uninit(y.raw_dim());
-    let (ds, ys, gs) = (dx.as_slice_mut().expect("fresh array"), y.as_slice().expect("standard layout"), g.as_slice().expect("standard layout"));
-    ds.par_chunks_mut(CHUNK).zip(ys.par_chunks(CHUNK)).zip(gs.par_chunks(CHUNK)).for_each(|((dc, yc), gc)| act_grad_run(act, zeroed(dc), yc, gc));
-    // SAFETY: the chunks cover dx and each was written in full.
-    Ok(unsafe { dx.assume_init() })
+    let (ys, gs) = (y.as_slice().expect("standard layout"), g.as_slice().expect("standard layout"));
+    // as in unary_fwd: no serial zeroing pass first; chunk k covers flat indices start..start + len
+    par_filled_in(act.name(), y.shape(), CHUNK, |start, dc| {
+        let end = start + dc.len();
+        act_grad_run(act, zeroed(dc), &ys[start..end], &gs[start..end])
+    })
 }

@@ -19,7 +19,7 @@ fn unary_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, act: &str) -> PyResult
     float_dispatch!(act.name(), "x", x, F => {
         let x = arr::<F>(act.name(), "x", x)?;
         let xv = x.as_array();
-        let y = run_kernel(py, || Ok(act::unary_fwd(act, xv)))?;
+        let y = run_kernel(py, || act::unary_fwd(act, xv))?;
         Ok(y.into_pyarray(py).into_any())
     })
 }

@@ -697,7 +697,7 @@ def _shade(scene: _Scene, owner: np.ndarray, x_left: np.ndarray) -> np.ndarray:
 def _camera(rng: np.random.Generator, image: np.ndarray) -> np.ndarray:
     """One view's camera: exposure, white balance and vignetting (gains on linear light, applied as
     gain^(1/2.2) to the gamma-encoded image), slight blur, signal-dependent noise; uint8 out."""
-    from ..underwater import _gaussian_blur
+    from ..filters import gaussian_blur
 
     height, width = image.shape[:2]
     exposure = np.exp(rng.normal(0.0, 0.1))
@@ -712,7 +712,7 @@ def _camera(rng: np.random.Generator, image: np.ndarray) -> np.ndarray:
     out = image * (vignette[..., None] * gain).astype(np.float32)
     sigma = rng.uniform(0.2, 0.8) if rng.random() < 0.6 else 0.0
     if sigma > 0:
-        out = _gaussian_blur(out, sigma)
+        out = gaussian_blur(out, sigma)
     read, shot = log_uniform(rng, 0.002, 0.015), rng.uniform(0.0, 0.02)
     # Noise std sqrt(read^2 + shot^2 * signal): Gaussian approximation of Poisson-Gaussian noise.
     noise = rng.standard_normal(out.shape, dtype=np.float32) * np.sqrt(read**2 + shot**2 * np.clip(out, 0.0, 1.0))
