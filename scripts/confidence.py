@@ -1,0 +1,74 @@
+"""How well `mipnet.match_confidence` tells where a weights file's disparity is backed by the images.
+
+    python scripts/confidence.py WEIGHTS [--pairs 8] [--size 384 512] [--thresholds 0.3 0.5 0.7]
+
+On validation pairs (`make_pair`, seeds from 2,000,000 as `scripts/validate_weights.py`), in air and in the
+`turbid` and `low_light` water of the validation sets, it prints for each threshold C the share of valid pixels
+whose confidence is >= C (kept) and the EPE / bad-3 of the kept and of the dropped pixels. Under water it also
+renders each pair with its far half (the pixels below the pair's median disparity) beyond the water's reach:
+rendered at disparity 0, i.e. at the water model's `z_max`, those pixels show pure veil, as open water does, and
+the line gives the share of them kept and the network's median disparity there (the truth is about 1.7 px).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+
+import mipnet  # noqa: E402
+from mipnet.data.synthetic import VALIDATION_SEED_START, apply_water, make_pair, water_for_item  # noqa: E402
+from mipnet.underwater import degrade  # noqa: E402
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("weights")
+    p.add_argument("--pairs", type=int, default=8)
+    p.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"))
+    p.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
+    p.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.5, 0.7])
+    args = p.parse_args()
+    model = mipnet.load(args.weights).eval()
+    iters = tuple(args.iters)
+    print(f"{args.pairs} validation pairs per set from seed {VALIDATION_SEED_START:,} at {args.size[0]}x{args.size[1]}, "
+          f"iterations {iters}; mipnet.match_confidence with its defaults (window 15, band 1-8 px)")
+    for name in ("air", "turbid", "low_light"):
+        errors, confidences, veil, veil_disparity = [], [], [], []
+        for seed in range(VALIDATION_SEED_START, VALIDATION_SEED_START + args.pairs):
+            pair = make_pair(*args.size, seed)
+            valid = pair["valid"]
+            if name != "air":
+                options, _ = water_for_item(name, seed)
+                far = valid & (pair["disparity"] < np.median(pair["disparity"][valid]))
+                left, right = degrade(pair["left"], pair["right"], np.where(far, 0.0, pair["disparity"]), seed=1, **options)
+                d = model(left, right, iters=iters)
+                veil.append(mipnet.match_confidence(left, right, d)[far])
+                veil_disparity.append(d[far])
+                apply_water(pair, name, seed)
+            d = model(pair["left"], pair["right"], iters=iters)
+            errors.append(np.abs(d - pair["disparity"])[valid])
+            confidences.append(mipnet.match_confidence(pair["left"], pair["right"], d)[valid])
+        e, c = np.concatenate(errors), np.concatenate(confidences)
+        print(f"{name}: all {e.mean():.2f} px / {100 * (e > 3).mean():.1f}%")
+        for t in args.thresholds:
+            kept = c >= t
+            line = (f"  C {t:g}: kept {100 * kept.mean():5.1f}%  {score(e[kept])}  |  dropped {score(e[~kept])}")
+            if veil:
+                line += f"  |  open water kept {100 * (np.concatenate(veil) >= t).mean():4.1f}%"
+            print(line)
+        if veil:
+            print(f"  open water: median disparity {np.median(np.concatenate(veil_disparity)):.1f} px (truth ~1.7)")
+    return 0
+
+
+def score(e: np.ndarray) -> str:
+    return f"{e.mean():5.2f} px / {100 * (e > 3).mean():5.1f}%" if e.size else "  (none)"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
