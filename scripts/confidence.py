@@ -1,6 +1,6 @@
 """How well `mipnet.match_confidence` tells where a weights file's disparity is backed by the images.
 
-    python scripts/confidence.py WEIGHTS [--pairs 8] [--size 384 512] [--thresholds 0.3 0.5 0.7]
+    python scripts/confidence.py WEIGHTS [--pairs 8] [--size 384 512] [--thresholds 0.3 0.5 0.7] [--real]
 
 On validation pairs (`make_pair`, seeds from 2,000,000 as `scripts/validate_weights.py`), in air and in the
 `turbid` and `low_light` water of the validation sets, it prints for each threshold C the share of valid pixels
@@ -8,6 +8,7 @@ whose confidence is >= C (kept) and the EPE / bad-3 of the kept and of the dropp
 renders each pair with its far half (the pixels below the pair's median disparity) beyond the water's reach:
 rendered at disparity 0, i.e. at the water model's `z_max`, those pixels show pure veil, as open water does, and
 the line gives the share of them kept and the network's median disparity there (the truth is about 1.7 px).
+``--real`` adds the real Middlebury pairs (Motorcycle; Cones once fetched), for evaluation only.
 """
 
 from __future__ import annotations
@@ -32,12 +33,13 @@ def main() -> int:
     p.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"))
     p.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
     p.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.5, 0.7])
+    p.add_argument("--real", action="store_true", help="also the real Middlebury pairs (evaluation only)")
     args = p.parse_args()
     model = mipnet.load(args.weights).eval()
     iters = tuple(args.iters)
     print(f"{args.pairs} validation pairs per set from seed {VALIDATION_SEED_START:,} at {args.size[0]}x{args.size[1]}, "
           f"iterations {iters}; mipnet.match_confidence with its defaults (window 15, band 1-8 px)")
-    for name in ("air", "turbid", "low_light"):
+    for name in ("air", "turbid", "low_light") if args.pairs > 0 else ():
         errors, confidences, veil, veil_disparity = [], [], [], []
         for seed in range(VALIDATION_SEED_START, VALIDATION_SEED_START + args.pairs):
             pair = make_pair(*args.size, seed)
@@ -53,17 +55,31 @@ def main() -> int:
             d = model(pair["left"], pair["right"], iters=iters)
             errors.append(np.abs(d - pair["disparity"])[valid])
             confidences.append(mipnet.match_confidence(pair["left"], pair["right"], d)[valid])
-        e, c = np.concatenate(errors), np.concatenate(confidences)
-        print(f"{name}: all {e.mean():.2f} px / {100 * (e > 3).mean():.1f}%")
-        for t in args.thresholds:
-            kept = c >= t
-            line = (f"  C {t:g}: kept {100 * kept.mean():5.1f}%  {score(e[kept])}  |  dropped {score(e[~kept])}")
-            if veil:
-                line += f"  |  open water kept {100 * (np.concatenate(veil) >= t).mean():4.1f}%"
-            print(line)
+        report(name, np.concatenate(errors), np.concatenate(confidences), args.thresholds, veil)
         if veil:
             print(f"  open water: median disparity {np.median(np.concatenate(veil_disparity)):.1f} px (truth ~1.7)")
+    for name in ("motorcycle", "cones") if args.real else ():
+        try:
+            pair = mipnet.data.RealPairs(name)[0]
+        except mipnet.errors.ArgumentError as error:  # cones not fetched
+            print(f"{name}: skipped ({error})")
+            continue
+        d = model(pair["left"], pair["right"], iters=iters)
+        valid = pair["valid"]
+        report(name, np.abs(d - pair["disparity"])[valid],
+               mipnet.match_confidence(pair["left"], pair["right"], d)[valid], args.thresholds, [])
     return 0
+
+
+def report(name: str, e: np.ndarray, c: np.ndarray, thresholds: list[float], veil: list[np.ndarray]) -> None:
+    """A set's line and one line per threshold: kept share, EPE / bad-3 of the kept and of the dropped pixels."""
+    print(f"{name}: all {e.mean():.2f} px / {100 * (e > 3).mean():.1f}%")
+    for t in thresholds:
+        kept = c >= t
+        line = f"  C {t:g}: kept {100 * kept.mean():5.1f}%  {score(e[kept])}  |  dropped {score(e[~kept])}"
+        if veil:
+            line += f"  |  open water kept {100 * (np.concatenate(veil) >= t).mean():4.1f}%"
+        print(line)
 
 
 def score(e: np.ndarray) -> str:

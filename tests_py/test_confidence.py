@@ -91,6 +91,15 @@ def test_shape_errors_name_the_function_and_the_shapes(args, error, text):
     assert text in str(info.value) and isinstance(info.value, RuntimeError)
 
 
+def test_non_finite_or_non_numeric_images_are_argument_errors():
+    left, right, disparity = textured_pair()
+    left[3, 4, 1] = np.nan
+    with pytest.raises(ArgumentError, match="match_confidence: left image .* NaN or inf"):
+        mipnet.match_confidence(left, right, disparity)
+    with pytest.raises(ArgumentError, match="right image has unsupported dtype"):
+        mipnet.match_confidence(right, right.astype(str), disparity)
+
+
 @pytest.mark.parametrize("options, text", [({"window": 4}, "window"), ({"window": 0}, "window"),
                                            ({"noise_sigma": 3.0, "shading_sigma": 2.0}, "noise_sigma")])
 def test_bad_options_are_argument_errors(options, text):

@@ -67,6 +67,11 @@ def match_confidence(left, right, disparity, window: int = 15, noise_sigma: floa
     if left.shape != right.shape or left.ndim not in (2, 3) or disparity.shape != left.shape[:2]:
         raise ShapeError(f"match_confidence: expected two (H, W, C) or (H, W) images of one shape and an (H, W) "
                          f"disparity, got left {left.shape}, right {right.shape}, disparity {disparity.shape}")
+    for name, image in (("left", left), ("right", right)):
+        if not (np.issubdtype(image.dtype, np.integer) or np.issubdtype(image.dtype, np.floating)):
+            raise ArgumentError(f"match_confidence: {name} image has unsupported dtype {image.dtype}")
+        if not np.isfinite(image).all():
+            raise ArgumentError(f"match_confidence: {name} image {image.shape} contains NaN or inf")
     if not (isinstance(window, (int, np.integer)) and window >= 1 and window % 2 == 1):
         raise ArgumentError(f"match_confidence: window must be a positive odd integer, got {window!r}")
     if not 0 <= noise_sigma < shading_sigma:
