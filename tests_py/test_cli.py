@@ -126,6 +126,15 @@ def test_eval_prints_mipnet_and_sgbm_rows(capsys):
     assert "MIPNet " in out and "(untrained)" not in out and "SGBM (full coverage)" in out and "SGBM (covered)" in out
 
 
+def test_eval_min_confidence_adds_a_covered_mipnet_row(capsys):
+    assert main(["eval", "--dataset", "synthetic", "--n", "2", "--size", "64", "96", "--iters", "1", "1",
+                 "--methods", "mipnet", "--min-confidence", "0.5"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| MIPNet")]
+    assert len(rows) == 2 and "(confidence >= 0.5)" in rows[1]
+    coverage = float(rows[1].split("|")[-3])
+    assert 0 < coverage < 100 and float(rows[0].split("|")[-3]) == 100
+
+
 def test_info_and_python_dash_m_entry_point():
     out = subprocess.run([sys.executable, "-m", "mipnet", "info"], capture_output=True, text=True, check=True).stdout
     assert "5,499,136" in out and "update_rls.gru" in out and "threads=" in out

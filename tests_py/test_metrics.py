@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 from mipnet.errors import ShapeError
-from mipnet.evaluation import evaluate_method, format_table, result_row
+from mipnet.evaluation import evaluate_method, format_table, mipnet_rows, result_row
 from mipnet.metrics import METRIC_KEYS, MetricAccumulator, aggregate, evaluate
 
 
@@ -129,6 +129,26 @@ def test_evaluate_method_plain_array_predictor_and_shape_check():
     assert exact["per_image"][0]["epe"] == 0.0 and exact["coverage"] == 100.0
     with pytest.raises(ShapeError):
         evaluate_method(_pairs(), lambda left, right: np.zeros((2, 2)))
+
+
+def test_mipnet_rows_score_the_dense_output_and_its_confident_pixels():
+    import mipnet
+
+    rng = np.random.default_rng(0)
+    scene = rng.uniform(0, 255, (48, 110, 3))
+    truth = np.full((48, 96), 6.0, np.float32)
+    pair = {"left": scene[:, :96], "right": scene[:, 6:102], "disparity": truth, "valid": np.ones((48, 96), bool)}
+    guess = truth.copy()
+    guess[:, 60:] += 5.0  # wrong by 5 px on the right part: not backed by the images there
+
+    dense, confident = mipnet_rows([pair], lambda left, right: guess, aggregation="pooled", min_confidence=0.5)
+    kept = mipnet.match_confidence(pair["left"], pair["right"], guess) >= 0.5
+    assert dense["method"] == "MIPNet" and dense["coverage"] == 100.0
+    assert dense["epe"] == pytest.approx(5.0 * 36 / 96)
+    assert confident["method"] == "MIPNet (confidence >= 0.5)"
+    assert confident["coverage"] == pytest.approx(100 * kept.mean())
+    assert confident["epe"] == pytest.approx(np.abs(guess - truth)[kept].mean()) and confident["epe"] < 0.2 * dense["epe"]
+    assert mipnet_rows([pair], lambda left, right: guess)[0]["epe"] == pytest.approx(dense["epe"])
 
 
 def test_format_table():

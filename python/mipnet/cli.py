@@ -302,7 +302,7 @@ def cmd_fetch(args: argparse.Namespace) -> int:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from . import pretrained
-    from .evaluation import evaluate_method, format_table, result_row, sgbm_rows
+    from .evaluation import format_table, mipnet_rows, sgbm_rows
 
     methods = set(args.methods.split(","))
     if not methods or not methods <= {"mipnet", "sgbm"}:
@@ -333,8 +333,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 return disp
 
             trained = bool(args.weights) or pretrained.available()
-            rows.append(result_row("MIPNet" + ("" if trained else " (untrained)"),
-                                   evaluate_method(pairs(), predict, on_error=on_error), args.aggregation))
+            rows += mipnet_rows(pairs(), predict, "MIPNet" + ("" if trained else " (untrained)"), args.aggregation,
+                                args.min_confidence, on_error)
     if "sgbm" in methods:
         full, covered = sgbm_rows(pairs(), aggregation=args.aggregation, on_error=on_error)
         rows += [{**full, "method": "SGBM (full coverage)"}, {**covered, "method": "SGBM (covered)"}]
@@ -456,6 +456,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
     ev.add_argument("--scale", type=positive_float, default=1.0, help="MIPNet's input resize factor (as infer)")
     ev.add_argument("--methods", default="mipnet,sgbm", help="comma-separated: mipnet, sgbm")
+    ev.add_argument("--min-confidence", type=unit_fraction, default=None, metavar="C",
+                    help="add a row scoring MIPNet only where its match confidence is >= C (as infer), beside "
+                         "SGBM's covered row")
     ev.add_argument("--preset", choices=("clear", "coastal", "turbid", "low_light", "random"),
                     help="underwater preset (random: water drawn around the presets per pair)")
     ev.add_argument("--n", type=positive_int, default=50, help="number of generated pairs (synthetic sets)")

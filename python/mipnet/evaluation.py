@@ -10,6 +10,9 @@ Coverage conventions for methods with holes:
   prediction of disparity 0 (its error is the ground-truth disparity).
 * ``"covered"``: only pixels the method filled are scored (the usual flattering SGBM number);
   the fraction of ground-truth pixels it filled is reported as ``coverage`` (percent).
+
+MIPNet answers everywhere; :func:`mipnet_rows` scores its dense output and, with a confidence threshold, the
+pixels whose :func:`mipnet.match_confidence` reaches it (a "covered" row beside SGBM's).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 from .errors import ShapeError
 from .metrics import MetricAccumulator, aggregate
 
-__all__ = ["evaluate_method", "sgbm_rows", "result_row", "format_table", "COVERAGES", "DEFAULT_COLUMNS"]
+__all__ = ["evaluate_method", "sgbm_rows", "mipnet_rows", "result_row", "format_table", "COVERAGES", "DEFAULT_COLUMNS"]
 
 COVERAGES = ("full", "covered")
 DEFAULT_COLUMNS = ("method", "epe", "bad1", "bad2", "bad3", "d1", "a90", "rms", "coverage", "images")
@@ -45,7 +48,7 @@ def _evaluate(pairs: Iterable[dict], predict_fn: Callable, coverages: Sequence[s
               on_error: Callable[[object, Exception], None] | None = None) -> dict:
     """One pass over ``pairs``, scoring every requested coverage convention. A pair whose prediction
     raises is skipped after ``on_error(name, error)`` returns (without ``on_error`` the error propagates)."""
-    unknown = set(coverages) - set(COVERAGES)
+    unknown = set(coverages) - set(COVERAGES) - {"dense"}
     if unknown:
         raise ValueError(f"unknown coverage {sorted(unknown)}; expected {COVERAGES}")
     pooled = {c: MetricAccumulator() for c in coverages}
@@ -70,6 +73,8 @@ def _evaluate(pairs: Iterable[dict], predict_fn: Callable, coverages: Sequence[s
         for coverage in coverages:
             if coverage == "full":
                 metrics = pooled[coverage].update(np.where(pred_valid, disparity, 0.0), gt, valid)
+            elif coverage == "dense":  # the prediction as it is, wherever it is finite, whatever the mask says
+                metrics = pooled[coverage].update(np.where(np.isfinite(disparity), disparity, 0.0), gt, valid)
             else:
                 metrics = pooled[coverage].update(disparity, gt, valid & pred_valid)
             per_image[coverage].append({"name": name, **metrics})
@@ -123,6 +128,46 @@ def result_row(method: str, result: dict, aggregation: str = "mean") -> dict:
     row["coverage"] = result["coverage"]
     row["images"] = len(result["per_image"])
     return row
+
+
+def mipnet_rows(pairs: Iterable[dict], predict_fn: Callable, method: str = "MIPNet", aggregation: str = "mean",
+                min_confidence: float | None = None,
+                on_error: Callable[[object, Exception], None] | None = None) -> list[dict]:
+    """Score a dense method, and with ``min_confidence`` also its confident pixels, in one pass.
+
+    Parameters
+    ----------
+    pairs : iterable of dict
+        As for :func:`evaluate_method`.
+    predict_fn : callable
+        ``(left, right) -> disparity`` (dense).
+    method : str
+        Name of the rows.
+    aggregation : str
+        ``"mean"`` or ``"pooled"`` (see :func:`result_row`).
+    min_confidence : float, optional
+        Adds a row ``"{method} (confidence >= C)"`` scored only where :func:`mipnet.match_confidence` of the
+        pair and the prediction reaches C, with that share of the pixels as its ``coverage``.
+    on_error : callable, optional
+        As for :func:`evaluate_method`.
+
+    Returns
+    -------
+    list of dict
+        ``[dense row]`` or ``[dense row, confident row]``.
+    """
+    if min_confidence is None:
+        return [result_row(method, _evaluate(pairs, predict_fn, ("dense",), on_error)["dense"], aggregation)]
+    from .confidence import match_confidence
+
+    def predict_with_confidence(left, right):
+        disparity = predict_fn(left, right)
+        return disparity, match_confidence(left, right, disparity) >= min_confidence
+
+    results = _evaluate(pairs, predict_with_confidence, ("dense", "covered"), on_error)
+    dense = result_row(method, results["dense"], aggregation)
+    dense["coverage"] = 100.0  # dense: every pixel has an answer
+    return [dense, result_row(f"{method} (confidence >= {min_confidence:g})", results["covered"], aggregation)]
 
 
 def sgbm_rows(pairs: Iterable[dict], method: str = "SGBM", aggregation: str = "mean",
