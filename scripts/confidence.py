@@ -1,6 +1,7 @@
 """How well `mipnet.match_confidence` tells where a weights file's disparity is backed by the images.
 
     python scripts/confidence.py WEIGHTS [--pairs 8] [--size 384 512] [--thresholds 0.3 0.5 0.7] [--real]
+    python scripts/confidence.py WEIGHTS --pairs 0 --figure docs/confidence_open_water.png
 
 On validation pairs (`make_pair`, seeds from 2,000,000 as `scripts/validate_weights.py`), in air and in the
 `turbid` and `low_light` water of the validation sets, it prints for each threshold C the share of valid pixels
@@ -8,7 +9,9 @@ whose confidence is >= C (kept) and the EPE / bad-3 of the kept and of the dropp
 renders each pair with its far half (the pixels below the pair's median disparity) beyond the water's reach:
 rendered at disparity 0, i.e. at the water model's `z_max`, those pixels show pure veil, as open water does, and
 the line gives the share of them kept and the network's median disparity there (the truth is about 1.7 px).
-``--real`` adds the real Middlebury pairs (Motorcycle; Cones once fetched), for evaluation only.
+``--real`` adds the real Middlebury pairs (Motorcycle; Cones once fetched), for evaluation only. ``--figure`` draws
+the first validation pair in turbid water, as rendered and with its far half as open water: left image, disparity,
+confidence, and the disparity where the confidence reaches the middle threshold.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ def main() -> int:
     p.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"))
     p.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.5, 0.7])
     p.add_argument("--real", action="store_true", help="also the real Middlebury pairs (evaluation only)")
+    p.add_argument("--figure", help="PNG of the first turbid validation pair, plain and with open water")
     args = p.parse_args()
     model = mipnet.load(args.weights).eval()
     iters = tuple(args.iters)
@@ -58,6 +62,8 @@ def main() -> int:
         report(name, np.concatenate(errors), np.concatenate(confidences), args.thresholds, veil)
         if veil:
             print(f"  open water: median disparity {np.median(np.concatenate(veil_disparity)):.1f} px (truth ~1.7)")
+    if args.figure:
+        figure(model, args.size, iters, args.thresholds[len(args.thresholds) // 2], args.figure)
     for name in ("motorcycle", "cones") if args.real else ():
         try:
             pair = mipnet.data.RealPairs(name)[0]
@@ -80,6 +86,30 @@ def report(name: str, e: np.ndarray, c: np.ndarray, thresholds: list[float], vei
         if veil:
             line += f"  |  open water kept {100 * (np.concatenate(veil) >= t).mean():4.1f}%"
         print(line)
+
+
+def figure(model, size, iters, threshold: float, path: str) -> None:
+    """Rows: the pair as rendered, then with its far half as open water; panels: left, disparity, confidence,
+    disparity where confidence >= threshold (black elsewhere), one colour scale."""
+    from mipnet import io, viz
+
+    seed = VALIDATION_SEED_START
+    pair = make_pair(*size, seed)
+    options, _ = water_for_item("turbid", seed)
+    valid = pair["valid"]
+    far = valid & (pair["disparity"] < np.median(pair["disparity"][valid]))
+    lo, hi = np.percentile(pair["disparity"][valid], [1, 99])
+    gap = np.full((size[0], 6, 3), 255, np.uint8)
+    rows = []
+    for rendered in (pair["disparity"], np.where(far, 0.0, pair["disparity"])):
+        left, right = degrade(pair["left"], pair["right"], rendered, seed=1, **options)
+        d = model(left, right, iters=iters)
+        confidence = mipnet.match_confidence(left, right, d)
+        panels = [left, viz.colorize(d, vmin=lo, vmax=hi), viz.colorize(confidence, vmin=0.0, vmax=1.0, cmap="gray"),
+                  viz.colorize(d, vmin=lo, vmax=hi, valid=confidence >= threshold)]
+        rows.append(np.concatenate(sum(([p, gap] for p in panels), [])[:-1], axis=1))
+    io.write_image(path, np.concatenate([rows[0], np.full((6, rows[0].shape[1], 3), 255, np.uint8), rows[1]], axis=0))
+    print(f"wrote {path}")
 
 
 def score(e: np.ndarray) -> str:
