@@ -26,6 +26,7 @@ sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "
 
 import mipnet  # noqa: E402
 from mipnet.data.synthetic import VALIDATION_SEED_START, apply_water, make_pair, water_for_item  # noqa: E402
+from mipnet.filters import box_sum  # noqa: E402
 from mipnet.underwater import degrade  # noqa: E402
 
 
@@ -44,7 +45,7 @@ def main() -> int:
     print(f"{args.pairs} validation pairs per set from seed {VALIDATION_SEED_START:,} at {args.size[0]}x{args.size[1]}, "
           f"iterations {iters}; mipnet.match_confidence with its defaults (window 15, band 1-8 px)")
     for name in ("air", "turbid", "low_light") if args.pairs > 0 else ():
-        errors, confidences, veil, veil_disparity = [], [], [], []
+        errors, confidences, veil, veil_disparity, near_objects = [], [], [], [], []
         for seed in range(VALIDATION_SEED_START, VALIDATION_SEED_START + args.pairs):
             pair = make_pair(*args.size, seed)
             valid = pair["valid"]
@@ -54,6 +55,8 @@ def main() -> int:
                 left, right = degrade(pair["left"], pair["right"], np.where(far, 0.0, pair["disparity"]), seed=1, **options)
                 d = model(left, right, iters=iters)
                 veil.append(mipnet.match_confidence(left, right, d)[far])
+                # within 16 px (Chebyshev) of a pixel that is not open water: the 33x33 box around it holds one
+                near_objects.append(box_sum((~far).astype(np.float32), 33)[far] > 0.5)
                 veil_disparity.append(d[far])
                 apply_water(pair, name, seed)
             d = model(pair["left"], pair["right"], iters=iters)
@@ -61,7 +64,11 @@ def main() -> int:
             confidences.append(mipnet.match_confidence(pair["left"], pair["right"], d)[valid])
         report(name, np.concatenate(errors), np.concatenate(confidences), args.thresholds, veil)
         if veil:
-            print(f"  open water: median disparity {np.median(np.concatenate(veil_disparity)):.1f} px (truth ~1.7)")
+            near, c = np.concatenate(near_objects), np.concatenate(veil)
+            kept = c >= args.thresholds[len(args.thresholds) // 2]
+            print(f"  open water: median disparity {np.median(np.concatenate(veil_disparity)):.1f} px (truth ~1.7); "
+                  f"{100 * near.mean():.0f}% of it lies within 16 px of the objects, {100 * near[kept].mean():.0f}% of what "
+                  f"C {args.thresholds[len(args.thresholds) // 2]:g} keeps")
     if args.figure:
         figure(model, args.size, iters, args.thresholds[len(args.thresholds) // 2], args.figure)
     for name in ("motorcycle", "cones") if args.real else ():

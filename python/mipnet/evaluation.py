@@ -166,7 +166,7 @@ def mipnet_rows(pairs: Iterable[dict], predict_fn: Callable, method: str = "MIPN
 
     results = _evaluate(pairs, predict_with_confidence, ("dense", "covered"), on_error)
     dense = result_row(method, results["dense"], aggregation)
-    dense["coverage"] = 100.0  # dense: every pixel has an answer
+    dense["coverage"] = 100.0  # _evaluate counted the confident pixels; the dense row answers at every pixel
     return [dense, result_row(f"{method} (confidence >= {min_confidence:g})", results["covered"], aggregation)]
 
 
