@@ -51,7 +51,7 @@ def main() -> int:
             valid = pair["valid"]
             if name != "air":
                 options, _ = water_for_item(name, seed)
-                far = valid & (pair["disparity"] < np.median(pair["disparity"][valid]))
+                far = far_half(pair)
                 left, right = degrade(pair["left"], pair["right"], np.where(far, 0.0, pair["disparity"]), seed=1, **options)
                 d = model(left, right, iters=iters)
                 veil.append(mipnet.match_confidence(left, right, d)[far])
@@ -95,6 +95,12 @@ def report(name: str, e: np.ndarray, c: np.ndarray, thresholds: list[float], vei
         print(line)
 
 
+def far_half(pair: dict) -> np.ndarray:
+    """The valid pixels below the pair's median disparity: the part rendered as open water."""
+    valid = pair["valid"]
+    return valid & (pair["disparity"] < np.median(pair["disparity"][valid]))
+
+
 def figure(model, size, iters, threshold: float, path: str) -> None:
     """Rows: the pair as rendered, then with its far half as open water; panels: left, disparity, confidence,
     disparity where confidence >= threshold (black elsewhere), one colour scale."""
@@ -104,7 +110,7 @@ def figure(model, size, iters, threshold: float, path: str) -> None:
     pair = make_pair(*size, seed)
     options, _ = water_for_item("turbid", seed)
     valid = pair["valid"]
-    far = valid & (pair["disparity"] < np.median(pair["disparity"][valid]))
+    far = far_half(pair)
     lo, hi = np.percentile(pair["disparity"][valid], [1, 99])
     gap = np.full((size[0], 6, 3), 255, np.uint8)
     rows = []
