@@ -65,6 +65,9 @@ const CASES: &[Case] = &[
     ("5x5_pad2_one_output", [1, 3, 9, 8], [1, 3, 5, 5], [1, 1], [2, 2]),
     ("3x3_pad0x2_two_outputs", [2, 3, 7, 6], [2, 3, 3, 3], [1, 1], [0, 2]),
     ("3x3_tiled_64ch_two_outputs", [2, 64, 53, 59], [2, 64, 3, 3], [1, 1], [1, 1]),
+    // more outputs than K = Cin·taps: dW is computed as its transpose (less micro-tile padding)
+    ("1x1_few_inputs_many_outputs", [2, 3, 6, 7], [40, 3, 1, 1], [1, 1], [0, 0]),
+    ("5x5_pad2_two_inputs_many_outputs", [1, 2, 9, 8], [64, 2, 5, 5], [1, 1], [2, 2]),
 ];
 
 /// The case of CASES named `name`.
@@ -189,6 +192,13 @@ fn conv2d_1x1_pointwise_bwd_gradcheck_f64() {
 #[test]
 fn conv2d_1x1_pointwise_many_tiles_bwd_gradcheck_f64() {
     gradcheck_case("1x1 tiled", [1, 8, 40, 50], [5, 8, 1, 1], Conv2dCfg::new([1, 1], [0, 0]), 19);
+}
+
+#[test]
+fn conv2d_more_outputs_than_weight_columns_bwd_gradcheck_f64() {
+    // dW taken as cols·dYᵀ into dWᵀ: Cout is wider than K = Cin·taps
+    gradcheck_case("1x1 3 -> 40", [2, 3, 6, 7], [40, 3, 1, 1], Conv2dCfg::new([1, 1], [0, 0]), 28);
+    gradcheck_case("5x5 p2 2 -> 64", [1, 2, 9, 8], [64, 2, 5, 5], Conv2dCfg::new([1, 1], [2, 2]), 29);
 }
 
 #[test]

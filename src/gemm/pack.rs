@@ -182,11 +182,17 @@ pub(crate) unsafe fn panel<E: Float>(plan: &Plan<E>, kc: usize, used: usize, w: 
             return;
         }
         let (j0, k8) = if ks == 1 && one { transpose_blocks(plan, kc, used, w, src, ps, dst) } else { (0, 0) };
-        for j in 0..w {
+        for j in 0..used {
             // the rest element by element: columns past the 8-blocks, and the depth tail of the others
             let from = if j < j0 { k8 } else { 0 };
             for kk in from..kc {
-                *dst.add(kk * w + j) = if j < used { scale * *src.offset(j as isize * ps + kk as isize * ks) } else { E::zero() };
+                *dst.add(kk * w + j) = scale * *src.offset(j as isize * ps + kk as isize * ks);
+            }
+        }
+        if used < w {
+            for kk in 0..kc {
+                // the padding columns used..w of row kk, one contiguous run
+                std::ptr::write_bytes(dst.add(kk * w + used), 0, w - used);
             }
         }
     }
