@@ -134,19 +134,25 @@ impl<E: Float> Prepacked<E> {
     pub(crate) fn new(plan: &Plan<E>, a: &Strided<E>) -> Self {
         let (mr, k) = (plan.mr, a.cols);
         let mpad = a.rows.div_ceil(mr) * mr;
-        let mut data = vec![E::zero(); mpad * k.max(1)];
-        if k > 0 && a.rows > 0 {
-            let kcb = plan.kc_for(k);
-            // K block p0 = b·kcb is the b-th run of mpad·kcb elements (the last one mpad·kc), panel p
-            // of it (rows p·MR..) the p-th run of kc·MR elements there
-            data.par_chunks_mut(mpad * kcb).enumerate().for_each(|(b, block)| {
-                let (p0, kc) = (b * kcb, block.len() / mpad);
-                block.par_chunks_mut(kc * mr).enumerate().for_each(|(p, dst)| {
-                    // SAFETY: dst holds kc·MR elements; rows p·MR.. < a.rows and depths p0..p0 + kc exist.
-                    unsafe { a.pack_panel(plan, p0, kc, p * mr, a.rows, dst.as_mut_ptr()) };
-                });
-            });
+        let len = mpad * k.max(1);
+        if k == 0 || a.rows == 0 {
+            return Prepacked { data: vec![E::zero(); len], mpad, mr, kc: plan.kc, k };
         }
+        // every panel below is written whole (padding rows included), so nothing is zeroed first
+        let mut data = Vec::<E>::with_capacity(len);
+        let kcb = plan.kc_for(k);
+        // K block p0 = b·kcb is the b-th run of mpad·kcb elements (the last one mpad·kc), panel p
+        // of it (rows p·MR..) the p-th run of kc·MR elements there
+        data.spare_capacity_mut()[..len].par_chunks_mut(mpad * kcb).enumerate().for_each(|(b, block)| {
+            let (p0, kc) = (b * kcb, block.len() / mpad);
+            block.par_chunks_mut(kc * mr).enumerate().for_each(|(p, dst)| {
+                // SAFETY: dst holds kc·MR elements (MaybeUninit<E> is laid out as E), all written by the
+                // pack; rows p·MR.. < a.rows and depths p0..p0 + kc exist.
+                unsafe { a.pack_panel(plan, p0, kc, p * mr, a.rows, dst.as_mut_ptr().cast()) };
+            });
+        });
+        // SAFETY: the blocks cover the first len elements and every panel was written whole.
+        unsafe { data.set_len(len) };
         Prepacked { data, mpad, mr, kc: plan.kc, k }
     }
 
