@@ -6,7 +6,8 @@
 //! every core. MIPNet allocates the same sizes over and over (every sub-update of a level has the same
 //! shapes, every training step the same activations and gradients), so freed large blocks are kept,
 //! already mapped, and handed out again for a request of the same size class (classes 25% apart, see
-//! [`class`]).
+//! [`class`]), or of a class up to `REUSE_LARGER` smaller when none of its own is cached (the
+//! activations of one phase of a step are freed as blocks of other sizes than the next phase asks for).
 //!
 //! The cache never raises the peak: the large bytes in use plus the bytes cached stay within the
 //! most large bytes ever in use at once (or `CACHE_FLOOR`, whichever is more), so a training step's
@@ -31,19 +32,32 @@ const CACHE_AGE: u64 = 8192;
 const CACHE_SLOTS: usize = 256;
 /// Alignment of every cached block (malloc's own for large blocks).
 const ALIGN: usize = 16;
+/// A request with no cached block of its class takes the smallest cached block up to this factor
+/// larger (num, den), rather than mapping and faulting in a fresh one.
+const REUSE_LARGER: (usize, usize) = (8, 5);
+/// Most blocks out at once that are larger than the class they were handed out for.
+const LARGER_SLOTS: usize = 128;
 
 /// Cached blocks: (bytes, address, tick when cached); address 0 marks a free slot. `tick` counts
-/// large allocations; `live` is the large bytes handed out and not freed, `high` its maximum so far.
+/// large allocations; `live` is the large bytes handed out and not freed, `high` its maximum so far;
+/// `larger` holds (address, bytes) of the blocks out for a smaller class than their own (0: free).
 struct Cache {
     slots: [(usize, usize, u64); CACHE_SLOTS],
+    larger: [(usize, usize); LARGER_SLOTS],
     bytes: usize,
     tick: u64,
     live: usize,
     high: usize,
 }
 
-static CACHE: Mutex<Cache> =
-    Mutex::new(Cache { slots: [(0, 0, 0); CACHE_SLOTS], bytes: 0, tick: 0, live: 0, high: 0 });
+static CACHE: Mutex<Cache> = Mutex::new(Cache {
+    slots: [(0, 0, 0); CACHE_SLOTS],
+    larger: [(0, 0); LARGER_SLOTS],
+    bytes: 0,
+    tick: 0,
+    live: 0,
+    high: 0,
+});
 
 /// Blocks the cache gave up, to free once its lock is released.
 type Freed = [(usize, *mut u8); CACHE_SLOTS + 1];
@@ -61,17 +75,38 @@ fn class(size: usize) -> usize {
 
 impl Cache {
     /// Counts one large allocation of `bytes` (a class size) as in use; a cached block of exactly
-    /// that size, removed from the cache; and the blocks that aged out, to free.
+    /// that size, else the smallest one up to `REUSE_LARGER` times larger (then counted with its own
+    /// size and remembered in `larger`), removed from the cache; and the blocks that aged out, to free.
     fn take(&mut self, bytes: usize) -> (Option<*mut u8>, Freed) {
         self.tick += 1;
-        self.live += bytes;
-        self.high = self.high.max(self.live);
-        let hit = (0..CACHE_SLOTS).find(|&i| self.slots[i].1 != 0 && self.slots[i].0 == bytes).map(|i| {
+        let cached = |i: usize| self.slots[i].1 != 0;
+        let exact = (0..CACHE_SLOTS).find(|&i| cached(i) && self.slots[i].0 == bytes);
+        let free_larger = self.larger.iter().position(|l| l.0 == 0);
+        let larger = || {
+            // bytes < size <= bytes · REUSE_LARGER
+            let fits = |i: usize| cached(i) && self.slots[i].0 > bytes && self.slots[i].0 * REUSE_LARGER.1 <= bytes * REUSE_LARGER.0;
+            free_larger.and((0..CACHE_SLOTS).filter(|&i| fits(i)).min_by_key(|&i| self.slots[i].0))
+        };
+        let hit = exact.or_else(larger).map(|i| {
             let (size, addr, _) = std::mem::take(&mut self.slots[i]);
             self.bytes -= size;
-            addr as *mut u8
+            if let (true, Some(j)) = (size != bytes, free_larger) {
+                self.larger[j] = (addr, size);
+            }
+            (size, addr as *mut u8)
         });
-        (hit, self.expire())
+        self.live += hit.map_or(bytes, |h| h.0);
+        self.high = self.high.max(self.live);
+        (hit.map(|h| h.1), self.expire())
+    }
+
+    /// The bytes of the block at `ptr` freed as class `bytes`: its own size if it was handed out for
+    /// a smaller class (then forgotten from `larger`).
+    fn own_size(&mut self, bytes: usize, ptr: *mut u8) -> usize {
+        match self.larger.iter_mut().find(|l| l.0 == ptr as usize) {
+            Some(l) => std::mem::take(l).1,
+            None => bytes,
+        }
     }
 
     /// Counts `bytes` as no longer in use (a block that `take` counted but the system did not give).
@@ -82,6 +117,7 @@ impl Cache {
     /// Keeps a freed block if it fits; returns what to free (aged-out blocks, the largest cached one
     /// when full, or the block itself).
     fn put(&mut self, bytes: usize, ptr: *mut u8) -> Freed {
+        let bytes = self.own_size(bytes, ptr);
         self.live -= bytes;
         let mut out = self.expire();
         let mut n = out.iter().position(|b| b.1.is_null()).unwrap_or(CACHE_SLOTS);
@@ -151,9 +187,10 @@ fn release_all(blocks: Freed) {
 }
 
 // SAFETY: small blocks and over-aligned ones go to `System` unchanged. A large block is reserved from
-// `System` with its class size and ALIGN, and only ever freed (or cached) with those, since a layout
-// always maps to the same class; a cached block is owned by the cache alone until `alloc` hands it
-// out again, to one caller, for a layout of the same class (so at most its size).
+// `System` with its class size and ALIGN, and only ever freed (or cached) with those: a layout always
+// maps to the same class, and a block handed out for a smaller class is listed in `larger` with its
+// own size until it comes back; a cached block is owned by the cache alone until `alloc` hands it out
+// again, to one caller, for a layout of the same or a smaller class (so at most its size).
 unsafe impl GlobalAlloc for HugePageAlloc {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         if !large(&layout) {
