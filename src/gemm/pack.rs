@@ -179,20 +179,17 @@ pub(crate) unsafe fn panel<E: Float>(plan: &Plan<E>, kc: usize, used: usize, w: 
     unsafe {
         if ps == 1 && one {
             for kk in 0..kc {
-                // dst row kk = src(kk, 0..used), contiguous, then zeros to w
+                // dst row kk = src(kk, 0..used), contiguous
                 std::ptr::copy_nonoverlapping(src.offset(kk as isize * ks), dst.add(kk * w), used);
-                if used < w {
-                    std::ptr::write_bytes(dst.add(kk * w + used), 0, w - used);
-                }
             }
-            return;
-        }
-        let (j0, k8) = if ks == 1 && one { transpose_blocks(plan, kc, used, w, src, ps, dst) } else { (0, 0) };
-        for j in 0..used {
-            // the rest element by element: columns past the 8-blocks, and the depth tail of the others
-            let from = if j < j0 { k8 } else { 0 };
-            for kk in from..kc {
-                *dst.add(kk * w + j) = scale * *src.offset(j as isize * ps + kk as isize * ks);
+        } else {
+            let (j0, k8) = if ks == 1 && one { transpose_blocks(plan, kc, used, w, src, ps, dst) } else { (0, 0) };
+            for j in 0..used {
+                // the rest element by element: columns past the 8-blocks, and the depth tail of the others
+                let from = if j < j0 { k8 } else { 0 };
+                for kk in from..kc {
+                    *dst.add(kk * w + j) = scale * *src.offset(j as isize * ps + kk as isize * ks);
+                }
             }
         }
         if used < w {
