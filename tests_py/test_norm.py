@@ -145,3 +145,51 @@ def test_norm_errors_name_op_and_shapes():
     with pytest.raises(mipnet.errors.ShapeError, match=r"instance_norm.*\[2, 3, 4, 4\].*\[2, 3, 4, 5\]"):
         y, m, s = _core.instance_norm_fwd(x.numpy())
         _core.instance_norm_bwd(x.numpy(), m, s, rand((2, 3, 4, 5)))
+
+
+@pytest.mark.parametrize("bias", [True, False])
+def test_eval_batch_norm_folded_into_conv_matches_both_layers_with_grads(bias):
+    """Eval-mode MS-CAM branches fold each BatchNorm into its convolution (BatchNorm2d.folded): output and
+    gradients (input, conv weight and bias, BN weight and bias) equal the two layers applied in turn."""
+    from mipnet.blocks import MSCAMBranch
+    from mipnet.nn import BatchNorm2d, Conv2d
+
+    rng = np.random.default_rng(3)
+    conv, bn = Conv2d(6, 5, 3, padding=1, bias=bias).double(), BatchNorm2d(5).double()
+    bn.running_mean[:], bn.running_var[:] = rng.normal(size=5), rng.uniform(0.3, 3.0, 5)
+    bn.weight.data[:], bn.bias.data[:] = rng.normal(size=5), rng.normal(size=5)
+    bn.eval()
+    x = rand((2, 6, 7, 9), np.float64)
+    params = [p for p in (conv.weight, conv.bias, bn.weight, bn.bias) if p is not None]
+
+    def outputs_and_grads(fn):
+        xt = mipnet.tensor(x, requires_grad=True)
+        for p in params:
+            p.grad = None
+        y = fn(xt)
+        (y * mipnet.tensor(rand(y.shape, np.float64, seed=4))).sum().backward()
+        return [y.numpy(), xt.grad.numpy()] + [p.grad.numpy() for p in params]
+
+    w, b = None, None
+
+    def folded(xt):
+        nonlocal w, b
+        w, b = bn.folded(conv)
+        return M.conv2d(xt, w, b, 1, 1)
+
+    for ours, ref in zip(outputs_and_grads(folded), outputs_and_grads(lambda xt: bn(conv(xt)))):
+        np.testing.assert_allclose(ours, ref, rtol=1e-12, atol=1e-12)
+
+    branch = MSCAMBranch(8).double()
+    for norm in (branch.bn1, branch.bn2):
+        norm.running_mean[:], norm.running_var[:] = rng.normal(size=norm.num_features), rng.uniform(0.3, 3.0, norm.num_features)
+    branch.eval()
+    z = mipnet.tensor(rand((2, 8, 5, 6), np.float64))
+    two_layers = branch.bn2(branch.conv2(M.relu(branch.bn1(branch.conv1(z)))))
+    np.testing.assert_allclose(branch(z).numpy(), two_layers.numpy(), rtol=1e-12, atol=1e-12)
+
+    with pytest.raises(mipnet.errors.ShapeError, match=r"BatchNorm2d.folded.*6 output channels.*5"):
+        bn.folded(Conv2d(5, 6, 1).double())
+    bn.train()
+    with pytest.raises(mipnet.errors.ArgumentError, match="BatchNorm2d.folded.*eval-mode"):
+        bn.folded(conv)

@@ -26,7 +26,13 @@ class MSCAMBranch(Module):
         self.bn2 = BatchNorm2d(c)
 
     def forward(self, z: Tensor) -> Tensor:
-        return self.bn2(self.conv2(ops.relu(self.bn1(self.conv1(z)))))
+        if self.bn1.training or self.bn2.training:
+            return self.bn2(self.conv2(ops.relu(self.bn1(self.conv1(z)))))
+        # eval-mode normalisations folded into their convolutions (no pass of their own), the ReLU
+        # in the first convolution's epilogue
+        (w1, b1), (w2, b2) = self.bn1.folded(self.conv1), self.bn2.folded(self.conv2)
+        hidden = ops.conv2d_relu(z, w1, b1, self.conv1.stride, self.conv1.padding)
+        return ops.conv2d(hidden, w2, b2, self.conv2.stride, self.conv2.padding)
 
 
 class MSCAM(Module):

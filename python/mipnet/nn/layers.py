@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import ops
+from ..errors import ArgumentError, ShapeError
 from ..tensor import Tensor
 from . import init
 from .module import Module, Parameter
@@ -50,6 +51,24 @@ class BatchNorm2d(Module):
             self._buffers["num_batches_tracked"] = self.num_batches_tracked + 1
         return ops.batch_norm(x, self.running_mean, self.running_var, self.weight, self.bias,
                               training=self.training, momentum=self.momentum, eps=self.eps)
+
+    def folded(self, conv: Conv2d) -> tuple[Tensor, Tensor]:
+        """The weight and bias of one convolution equal to ``self(conv(x))`` in eval mode, where this
+        normalisation is the affine map y = s·(x − μ) + β per channel, s = γ / sqrt(σ² + eps):
+        W' = s·W (per output channel) and b' = s·(b − μ) + β. Built from Tensor ops, so gradients
+        reach W, b, γ and β as through the two layers."""
+        if self.training:
+            raise ArgumentError("BatchNorm2d.folded: only an eval-mode normalisation (running statistics) folds "
+                               "into a convolution")
+        if conv.out_channels != self.num_features:
+            raise ShapeError(f"BatchNorm2d.folded: a convolution with {conv.out_channels} output channels "
+                               f"into a normalisation of {self.num_features}")
+        dtype = self.weight.data.dtype
+        inv_std = (1.0 / np.sqrt(self.running_var.astype(np.float64) + self.eps)).astype(dtype)
+        scale = self.weight * inv_std
+        weight = conv.weight * scale.reshape(-1, 1, 1, 1)
+        shift = -self.running_mean.astype(dtype) if conv.bias is None else conv.bias - self.running_mean.astype(dtype)
+        return weight, scale * shift + self.bias
 
     def extra_repr(self) -> str:
         return f"{self.num_features}, eps={self.eps}, momentum={self.momentum}"
