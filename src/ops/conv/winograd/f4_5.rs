@@ -97,40 +97,43 @@ pub(super) fn weight_grad<F: Float>(du: impl Fn(usize) -> F, dw: &mut [F]) {
 pub(super) fn input_rows<F: Float>(along: Along, isa: Isa, g: &Geom, xc: &[F], ty: usize, tw: usize, v: &mut [F], at: usize,
                                    xi_stride: usize, buf: &mut Rows<F>) {
     let (ph, pw) = (g.pad[0] as isize, g.pad[1] as isize);
-    // padded input rows: r[s] = x[iy, s − pw] for s in 0..width; along x one row of 4·tw + 4
-    // columns (the 8 of the last tile), along y 8 rows of Wo columns
-    let (first, count, width) = match along {
-        Along::X => (ty as isize - ph, 1, TILE * tw + TILE),
-        Along::Y => ((TILE * ty) as isize - ph, 8, g.wo),
-    };
-    for (r, row) in buf.patch.chunks_exact_mut(width).take(count).enumerate() {
-        // input row iy = first + r; columns s − pw for s in [pw, pw + W) ∩ [0, width)
-        let iy = first + r as isize;
-        row.fill(F::zero());
-        if iy >= 0 && (iy as usize) < g.h {
-            let src = &xc[iy as usize * g.w..(iy as usize + 1) * g.w];
-            let (s0, s1) = ((pw as usize).min(width), (pw as usize + g.w).min(width));
-            row[s0..s1].copy_from_slice(&src[..s1 - s0]);
+    // input row iy, None above or below the image
+    let input_row = |iy: isize| (iy >= 0 && (iy as usize) < g.h).then(|| &xc[iy as usize * g.w..(iy as usize + 1) * g.w]);
+    if along == Along::Y {
+        // 8 padded input rows of Wo columns: r[s] = x[4·ty − ph + r, s − pw] for s in 0..Wo
+        for (r, row) in buf.patch.chunks_exact_mut(g.wo).take(8).enumerate() {
+            row.fill(F::zero());
+            if let Some(src) = input_row((TILE * ty) as isize - ph + r as isize) {
+                // columns s − pw for s in [pw, pw + W) ∩ [0, Wo)
+                let (s0, s1) = ((pw as usize).min(g.wo), (pw as usize + g.w).min(g.wo));
+                row[s0..s1].copy_from_slice(&src[..s1 - s0]);
+            }
         }
     }
-    input_row_isa(isa, along, width, tw, buf, v, at, xi_stride);
+    // along x, the one input row ty − ph, read as padded by pw columns in front
+    let x_row = if along == Along::X { input_row(ty as isize - ph) } else { None };
+    input_row_isa(isa, along, x_row, pw as usize, g.wo, tw, buf, v, at, xi_stride);
 }
 
 per_isa!(
     /// [`input_row`] for the plan's ISA.
-    input_row_isa => input_row (along: Along, width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize)
+    input_row_isa => input_row (along: Along, x_row: Option<&[F]>, pw: usize, width: usize, tw: usize, buf: &mut Rows<F>,
+                                v: &mut [F], at: usize, xi_stride: usize)
 );
 
-/// The input transform of one row of tiles from its padded input rows in `buf.patch`, into
-/// `v[ξ·xi_stride + at + t]`.
+/// The input transform of one row of tiles into `v[ξ·xi_stride + at + t]`: along x from the input
+/// row `x_row` (padded by `pw` columns in front), along y from the 8 padded input rows of `width`
+/// columns in `buf.patch`.
 #[inline(always)]
-fn input_row<F: Float>(along: Along, width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize) {
+#[allow(clippy::too_many_arguments)]
+fn input_row<F: Float>(along: Along, x_row: Option<&[F]>, pw: usize, width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F],
+                       at: usize, xi_stride: usize) {
     let Rows { patch, phase, .. } = buf;
     let mut out_rows = strided_rows_mut(v, at, xi_stride, tw);
     match along {
         Along::X => {
-            // d_j[tx] = row[4·tx + j]: phase j % 4 from tile tx + j / 4
-            split_phases(&patch[..width], tw + 1, phase);
+            // d_j[tx] = padded row[4·tx + j]: phase j % 4 from tile tx + j / 4
+            split_phases(x_row, pw, tw + 1, phase);
             let d = std::array::from_fn(|j| &phase[(j % 4) * (tw + 1) + j / 4..][..tw]);
             map_tiles::<F, InputTransform, 8, 8>(d, &mut out_rows);
         }
@@ -192,38 +195,40 @@ fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, buf: &m
 #[allow(clippy::too_many_arguments)]
 pub(super) fn grad_output_rows<F: Float>(along: Along, isa: Isa, g: &Geom, dyo: &[F], ty: usize, tw: usize, dm: &mut [F],
                                          at: usize, xi_stride: usize, buf: &mut Rows<F>) {
-    // dY rows: along x the one row ty, padded to 4·tw columns; along y rows 4·ty + i, i < 4
-    let (first, count, width) = match along {
-        Along::X => (ty, 1, TILE * tw),
-        Along::Y => (TILE * ty, TILE, g.wo),
-    };
-    for (r, row) in buf.patch.chunks_exact_mut(width).take(count).enumerate() {
-        let oy = first + r;
-        row.fill(F::zero());
-        if oy < g.ho {
-            row[..g.wo].copy_from_slice(&dyo[oy * g.wo..(oy + 1) * g.wo]);
+    // dY row oy, None below the image
+    let dy_row = |oy: usize| (oy < g.ho).then(|| &dyo[oy * g.wo..(oy + 1) * g.wo]);
+    if along == Along::Y {
+        // dY rows 4·ty + i, i < 4, of Wo columns, zero below the image
+        for (i, row) in buf.patch.chunks_exact_mut(g.wo).take(TILE).enumerate() {
+            match dy_row(TILE * ty + i) {
+                Some(src) => row.copy_from_slice(src),
+                None => row.fill(F::zero()),
+            }
         }
     }
-    grad_output_row_isa(isa, along, width, tw, buf, dm, at, xi_stride);
+    let x_row = if along == Along::X { dy_row(ty) } else { None };
+    grad_output_row_isa(isa, along, x_row, g.wo, tw, buf, dm, at, xi_stride);
 }
 
 per_isa!(
     /// [`grad_output_row`] for the plan's ISA.
-    grad_output_row_isa => grad_output_row (along: Along, width: usize, tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize,
-                                            xi_stride: usize)
+    grad_output_row_isa => grad_output_row (along: Along, x_row: Option<&[F]>, width: usize, tw: usize, buf: &mut Rows<F>,
+                                            dm: &mut [F], at: usize, xi_stride: usize)
 );
 
-/// The adjoint output transform of one row of tiles from its dY rows in `buf.patch`, into
-/// `dm[ξ·xi_stride + at + t]`.
+/// The adjoint output transform of one row of tiles into `dm[ξ·xi_stride + at + t]`: along x from
+/// the dY row `x_row` (columns past Wo read as 0), along y from the 4 dY rows of `width` columns in
+/// `buf.patch`.
 #[inline(always)]
-fn grad_output_row<F: Float>(along: Along, width: usize, tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize,
-                             xi_stride: usize) {
+#[allow(clippy::too_many_arguments)]
+fn grad_output_row<F: Float>(along: Along, x_row: Option<&[F]>, width: usize, tw: usize, buf: &mut Rows<F>, dm: &mut [F],
+                             at: usize, xi_stride: usize) {
     let Rows { patch, phase, .. } = buf;
     let mut out_rows = strided_rows_mut(dm, at, xi_stride, tw);
     match along {
         Along::X => {
             // y_i[tx] = row[4·tx + i]
-            split_phases(&patch[..width], tw, phase);
+            split_phases(x_row, 0, tw, phase);
             map_tiles::<F, GradOutputTransform, 4, 8>(strided_rows(phase, 0, tw, tw), &mut out_rows);
         }
         // y_i[ox] = dY row 4·ty + i

@@ -97,36 +97,31 @@ pub(super) fn weight_grad<F: Float>(du: impl Fn(usize) -> F, dw: &mut [F]) {
 #[allow(clippy::too_many_arguments)]
 pub(super) fn input_rows<F: Float>(isa: Isa, g: &Geom, xc: &[F], ty: usize, tw: usize, v: &mut [F], at: usize,
                                    xi_stride: usize, buf: &mut Rows<F>) {
-    let (ph, pw) = (g.pad[0] as isize, g.pad[1] as isize);
-    // one padded input row: r[s] = x[iy, s − pw] for s in 0..width (a whole number of tiles + 4)
-    let width = TILE * (tw + 1) + 2;
-    for (r, row) in buf.patch.chunks_exact_mut(width).enumerate() {
-        // input row iy = 4·ty + r − ph; columns s − pw for s in [pw, pw + W) ∩ [0, width)
-        let iy = (TILE * ty) as isize + r as isize - ph;
-        row.fill(F::zero());
-        if iy >= 0 && (iy as usize) < g.h {
-            let src = &xc[iy as usize * g.w..(iy as usize + 1) * g.w];
-            let (s0, s1) = (pw as usize, (pw as usize + g.w).min(width));
-            row[s0..s1].copy_from_slice(&src[..s1 - s0]);
-        }
-    }
-    input_row_isa(isa, width, tw, buf, v, at, xi_stride);
+    let ph = g.pad[0] as isize;
+    // patch row r is input row iy = 4·ty + r − ph (None above or below the image)
+    let rows: [Option<&[F]>; 6] = std::array::from_fn(|r| {
+        let iy = (TILE * ty + r) as isize - ph;
+        (iy >= 0 && (iy as usize) < g.h).then(|| &xc[iy as usize * g.w..(iy as usize + 1) * g.w])
+    });
+    input_row_isa(isa, &rows, g.pad[1], tw, buf, v, at, xi_stride);
 }
 
 per_isa!(
     /// [`input_row`] for the plan's ISA.
-    input_row_isa => input_row (width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize)
+    input_row_isa => input_row (rows: &[Option<&[F]>; 6], pw: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize,
+                                xi_stride: usize)
 );
 
-/// The input transform of one row of tiles from its 6 padded input rows (`buf.patch`): along x per
-/// patch row (into `buf.ex`), then along y into `v[ξ·xi_stride + at + tx]`. Every loop runs over
-/// the tiles tx of the row on contiguous arrays.
+/// The input transform of one row of tiles from its 6 input rows (`rows`, read as padded by `pw`
+/// columns in front): along x per patch row (into `buf.ex`), then along y into
+/// `v[ξ·xi_stride + at + tx]`. Every loop runs over the tiles tx of the row on contiguous arrays.
 #[inline(always)]
-fn input_row<F: Float>(width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize, xi_stride: usize) {
-    let Rows { patch, phase, ex } = buf;
-    for (r, row) in patch.chunks_exact(width).enumerate() {
-        // phase[m][tx] = row[4·tx + m]: the patch columns j = m (and j = 4 + m from tile tx + 1)
-        split_phases(row, tw + 1, phase);
+fn input_row<F: Float>(rows: &[Option<&[F]>; 6], pw: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F], at: usize,
+                       xi_stride: usize) {
+    let Rows { phase, ex, .. } = buf;
+    for (r, &row) in rows.iter().enumerate() {
+        // phase[m][tx] = padded row[4·tx + m]: the patch columns j = m (and j = 4 + m from tile tx + 1)
+        split_phases(row, pw, tw + 1, phase);
         // d_j[tx] = row[4·tx + j]: phase j % 4 from tile tx + j / 4
         let p = |m: usize, shift: usize| &phase[m * (tw + 1) + shift..m * (tw + 1) + shift + tw];
         let (d0, d1, d2, d3, d4, d5) = (p(0, 0), p(1, 0), p(2, 0), p(3, 0), p(0, 1), p(1, 1));
@@ -197,31 +192,29 @@ fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, 
 #[allow(clippy::too_many_arguments)]
 pub(super) fn grad_output_rows<F: Float>(isa: Isa, g: &Geom, dyo: &[F], ty: usize, tw: usize, dm: &mut [F], at: usize,
                                          xi_stride: usize, buf: &mut Rows<F>) {
-    let width = TILE * tw;
-    for (r, row) in buf.patch.chunks_exact_mut(width).take(TILE).enumerate() {
-        // dY row oy = 4·ty + r, columns 0..Wo, zero beyond
+    // dY row oy = 4·ty + r (None below the image); columns past Wo read as 0
+    let rows: [Option<&[F]>; TILE] = std::array::from_fn(|r| {
         let oy = TILE * ty + r;
-        row.fill(F::zero());
-        if oy < g.ho {
-            row[..g.wo].copy_from_slice(&dyo[oy * g.wo..(oy + 1) * g.wo]);
-        }
-    }
-    grad_output_row_isa(isa, tw, buf, dm, at, xi_stride);
+        (oy < g.ho).then(|| &dyo[oy * g.wo..(oy + 1) * g.wo])
+    });
+    grad_output_row_isa(isa, &rows, tw, buf, dm, at, xi_stride);
 }
 
 per_isa!(
     /// [`grad_output_row`] for the plan's ISA.
-    grad_output_row_isa => grad_output_row (tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize, xi_stride: usize)
+    grad_output_row_isa => grad_output_row (rows: &[Option<&[F]>; TILE], tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize,
+                                            xi_stride: usize)
 );
 
-/// The adjoint output transform of one row of tiles from its 4 dY rows (`buf.patch`, 4·tw values
-/// each): along x per row (into `buf.ex`), then along y into `dm[ξ·xi_stride + at + tx]`.
+/// The adjoint output transform of one row of tiles from its 4 dY rows (`rows`): along x per row
+/// (into `buf.ex`), then along y into `dm[ξ·xi_stride + at + tx]`.
 #[inline(always)]
-fn grad_output_row<F: Float>(tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize, xi_stride: usize) {
-    let Rows { patch, phase, ex } = buf;
-    for (r, row) in patch.chunks_exact(TILE * tw).take(TILE).enumerate() {
+fn grad_output_row<F: Float>(rows: &[Option<&[F]>; TILE], tw: usize, buf: &mut Rows<F>, dm: &mut [F], at: usize,
+                             xi_stride: usize) {
+    let Rows { phase, ex, .. } = buf;
+    for (r, &row) in rows.iter().enumerate() {
         // phase[m][tx] = row[4·tx + m]: the tile's column m
-        split_phases(row, tw, phase);
+        split_phases(row, 0, tw, phase);
         // ex[r][k][tx] = (A y_row)[k] for the 4 values y_m = row[4·tx + m]
         let y = strided_rows(phase, 0, tw, tw);
         let mut e = strided_rows_mut(ex, r * 6 * tw, tw, tw);

@@ -121,13 +121,31 @@ impl<F: Float> Rows<F> {
     }
 }
 
-/// Splits the first 4·n values of a row into its 4 phases: `phase[m·n + tx]` = row[4·tx + m] for tx < n.
+/// The 4 phases of a row that is zero-padded by `pad` values in front, read straight from the
+/// unpadded row `x` (None: a row of zeros): `phase[m·n + tx]` = x[4·tx + m − pad] for tx < n, 0
+/// where that index lies outside x.
 #[inline(always)]
-pub(super) fn split_phases<F: Float>(row: &[F], n: usize, phase: &mut [F]) {
+pub(super) fn split_phases<F: Float>(x: Option<&[F]>, pad: usize, n: usize, phase: &mut [F]) {
+    let phase = &mut phase[..4 * n];
+    let Some(x) = x else {
+        phase.fill(F::zero());
+        return;
+    };
+    // tiles lo..hi read their 4 values inside x: 4·lo − pad >= 0 and 4·hi − pad <= x.len()
+    let lo = pad.div_ceil(4).min(n);
+    let hi = ((x.len() + pad) / 4).clamp(lo, n);
+    for tx in (0..lo).chain(hi..n) {
+        for m in 0..4 {
+            // padded column 4·tx + m is x[4·tx + m − pad] when that lies in 0..x.len()
+            let s = (4 * tx + m).checked_sub(pad).filter(|&s| s < x.len());
+            phase[m * n + tx] = s.map_or(F::zero(), |s| x[s]);
+        }
+    }
     let (p0, rest) = phase.split_at_mut(n);
     let (p1, rest) = rest.split_at_mut(n);
     let (p2, p3) = rest.split_at_mut(n);
-    for (tx, q) in row.chunks_exact(4).take(n).enumerate() {
+    // tile tx reads x[4·tx − pad ..][..4]
+    for (tx, q) in (lo..hi).zip(x[4 * lo - pad..4 * hi - pad].chunks_exact(4)) {
         (p0[tx], p1[tx], p2[tx], p3[tx]) = (q[0], q[1], q[2], q[3]);
     }
 }
