@@ -143,46 +143,51 @@ fn input_row<F: Float>(rows: &[Option<&[F]>; 6], pw: usize, tw: usize, buf: &mut
 #[allow(clippy::too_many_arguments)]
 pub(super) fn output_rows<F: Float>(isa: Isa, g: &Geom, m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, relu: bool,
                                     ty: usize, yo: &mut [F], buf: &mut Rows<F>) {
-    output_row_isa(isa, m, at, xi_stride, tw, b0, relu, buf);
-    for r in 0..TILE {
-        // output row 4·ty + r from the row's 4·tw values in buf.patch, clipped to Wo
-        let oy = TILE * ty + r;
-        if oy >= g.ho {
-            break;
-        }
-        yo[oy * g.wo..(oy + 1) * g.wo].copy_from_slice(&buf.patch[r * TILE * tw..r * TILE * tw + g.wo]);
-    }
+    // output rows 4·ty .. min(4·ty + 4, Ho), Wo values each
+    let out = &mut yo[TILE * ty * g.wo..(TILE * ty + TILE).min(g.ho) * g.wo];
+    output_row_isa(isa, m, at, xi_stride, tw, b0, relu, out, g.wo, buf);
 }
 
 per_isa!(
     /// [`output_row`] for the plan's ISA.
-    output_row_isa => output_row (m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, relu: bool, buf: &mut Rows<F>)
+    output_row_isa => output_row (m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, relu: bool, out: &mut [F], wo: usize,
+                                  buf: &mut Rows<F>)
 );
 
 /// The output transform of one row of tiles: m[ξ][tx] = `m[ξ·xi_stride + at + tx]` along y (into
-/// `buf.ex`), then along x, + b0 and ReLU, into 4 output rows of 4·tw values in `buf.patch`.
+/// `buf.ex`), then along x, + b0 and ReLU, into the output rows `out` (rows of `wo` values, at most
+/// 4: row r of the tiles, clipped to Wo, goes to row r of `out` while there is one).
 #[inline(always)]
-fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, relu: bool, buf: &mut Rows<F>) {
-    let Rows { patch, ex, .. } = buf;
+#[allow(clippy::too_many_arguments)]
+fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, relu: bool, out: &mut [F], wo: usize,
+                        buf: &mut Rows<F>) {
+    let ex = &mut buf.ex;
     for b in 0..6 {
         // column b: m[6a + b] for a = 0..6 (rows 6·xi_stride apart), along y into ex[b][r][tx], r < 4
         let mv = strided_rows(m, b * xi_stride + at, 6 * xi_stride, tw);
         let mut e = strided_rows_mut(&mut ex[b * TILE * tw..], 0, tw, tw);
         map_tiles::<F, OutputTransform, 6, 4>(mv, &mut e);
     }
-    for r in 0..TILE {
+    let act = |v: F| {
+        let o = v + b0;
+        if relu { o.max(F::zero()) } else { o }
+    };
+    for (r, out_row) in out.chunks_exact_mut(wo).enumerate() {
         // output row r of every tile: (ex[b][r][tx] for b = 0..6, rows 4·tw apart) along x into
-        // q[c][tx] (ex rows 24..28, free), then interleaved into columns 4·tx + c
+        // q[c][tx] (ex rows 24..28, free), then interleaved into columns 4·tx + c < Wo
         let (e, free) = ex.split_at_mut(6 * TILE * tw);
         let e = strided_rows(e, r * tw, TILE * tw, tw);
         let mut q = strided_rows_mut(free, 0, tw, tw);
         map_tiles::<F, OutputTransform, 6, 4>(e, &mut q);
-        let out_row = &mut patch[r * TILE * tw..(r + 1) * TILE * tw];
-        for (tx, quad) in out_row.chunks_exact_mut(TILE).enumerate() {
+        // whole tiles tx < Wo / 4, then the first Wo % 4 columns of the next
+        let (whole, part) = out_row.split_at_mut(out_row.len() / TILE * TILE);
+        for (tx, quad) in whole.chunks_exact_mut(TILE).enumerate() {
             for (c, slot) in quad.iter_mut().enumerate() {
-                let o = q[c][tx] + b0;
-                *slot = if relu { o.max(F::zero()) } else { o };
+                *slot = act(q[c][tx]);
             }
+        }
+        for (c, slot) in part.iter_mut().enumerate() {
+            *slot = act(q[c][whole.len() / TILE]);
         }
     }
 }
