@@ -104,10 +104,10 @@ pub(super) fn strided_rows<F, const N: usize>(buf: &[F], first: usize, stride: u
 }
 
 /// Per-thread buffers of the transforms of one tile row (a few KiB, reused across calls), sized
-/// for every scheme: a row of `tw` tiles is at most 4·tw + 4 input columns wide (and a column
-/// scheme's row, tw = Wo, at most tw + 4).
+/// for every scheme (a row scheme reads its input and dY rows in place; a column scheme's row has
+/// tw = Wo tiles).
 pub(super) struct Rows<F> {
-    /// Input or output rows of the tiles, zero-padded: 6 x (4·tw + 6).
+    /// A column scheme's zero-padded input rows (8 x Wo) or dY rows (4 x Wo).
     pub patch: Vec<F>,
     /// Phases of a padded row: `phase[m][tx]` = row[4·tx + m], m < 4, tx <= tw.
     pub phase: Vec<F>,
@@ -117,7 +117,7 @@ pub(super) struct Rows<F> {
 
 impl<F: Float> Rows<F> {
     pub fn new(tw: usize) -> Self {
-        Rows { patch: vec![F::zero(); 6 * (4 * tw + 6)], phase: vec![F::zero(); 4 * (tw + 1)], ex: vec![F::zero(); 36 * tw] }
+        Rows { patch: vec![F::zero(); 8 * tw], phase: vec![F::zero(); 4 * (tw + 1)], ex: vec![F::zero(); 36 * tw] }
     }
 }
 
