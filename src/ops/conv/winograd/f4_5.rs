@@ -4,7 +4,7 @@
 //! (the points of F(6, 3)); the matrices were derived with exact fractions and are checked in f64
 //! against the direct convolution by `tests_rs/conv.rs`.
 
-use super::lanes::{map_tiles, per_isa, split_phases, strided_rows, strided_rows_mut, Lane, Rows, Transform1d};
+use super::lanes::{map_tiles, merge_phases, per_isa, split_phases, strided_rows, strided_rows_mut, Lane, Rows, Transform1d};
 use super::super::Geom;
 use crate::gemm::Isa;
 use crate::Float;
@@ -157,12 +157,7 @@ pub(super) fn output_rows<F: Float>(along: Along, isa: Isa, g: &Geom, m: &[F], a
     match along {
         Along::X => {
             // y[ty, 4·tx + i] = q[i][tx], clipped to Wo
-            let row = &mut yo[ty * g.wo..(ty + 1) * g.wo];
-            for (tx, quad) in row.chunks_mut(TILE).enumerate() {
-                for (i, slot) in quad.iter_mut().enumerate() {
-                    *slot = out(q[i][tx]);
-                }
-            }
+            merge_phases(q, &mut yo[ty * g.wo..(ty + 1) * g.wo], out);
         }
         Along::Y => {
             for (i, qi) in q.iter().enumerate() {

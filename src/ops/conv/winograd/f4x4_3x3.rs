@@ -2,7 +2,7 @@
 //! 6 x 6 input patch (36 transform positions ξ = 6a + b, a along y and b along x). Matrices from
 //! Lavin & Gray (2016), points 0, ±1, ±2, ∞.
 
-use super::lanes::{map_tiles, per_isa, split_phases, strided_rows, strided_rows_mut, Lane, Rows, Transform1d};
+use super::lanes::{map_tiles, merge_phases, per_isa, split_phases, strided_rows, strided_rows_mut, Lane, Rows, Transform1d};
 use super::super::Geom;
 use crate::gemm::Isa;
 use crate::Float;
@@ -179,16 +179,8 @@ fn output_row<F: Float>(m: &[F], at: usize, xi_stride: usize, tw: usize, b0: F, 
         let e = strided_rows(e, r * tw, TILE * tw, tw);
         let mut q = strided_rows_mut(free, 0, tw, tw);
         map_tiles::<F, OutputTransform, 6, 4>(e, &mut q);
-        // whole tiles tx < Wo / 4, then the first Wo % 4 columns of the next
-        let (whole, part) = out_row.split_at_mut(out_row.len() / TILE * TILE);
-        for (tx, quad) in whole.chunks_exact_mut(TILE).enumerate() {
-            for (c, slot) in quad.iter_mut().enumerate() {
-                *slot = act(q[c][tx]);
-            }
-        }
-        for (c, slot) in part.iter_mut().enumerate() {
-            *slot = act(q[c][whole.len() / TILE]);
-        }
+        // out_row[4·tx + c] = q[c][tx], clipped to Wo
+        merge_phases([&*q[0], &*q[1], &*q[2], &*q[3]], out_row, act);
     }
 }
 

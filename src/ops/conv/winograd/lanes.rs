@@ -144,9 +144,28 @@ pub(super) fn split_phases<F: Float>(x: Option<&[F]>, pad: usize, n: usize, phas
     let (p0, rest) = phase.split_at_mut(n);
     let (p1, rest) = rest.split_at_mut(n);
     let (p2, p3) = rest.split_at_mut(n);
-    // tile tx reads x[4·tx − pad ..][..4]
-    for (tx, q) in (lo..hi).zip(x[4 * lo - pad..4 * hi - pad].chunks_exact(4)) {
-        (p0[tx], p1[tx], p2[tx], p3[tx]) = (q[0], q[1], q[2], q[3]);
+    // tile tx reads x[4·tx − pad ..][..4] (zipped slices, no index checks, so the loop vectorises)
+    let quads = x[4 * lo - pad..4 * hi - pad].chunks_exact(4);
+    let phases = p0[lo..hi].iter_mut().zip(&mut p1[lo..hi]).zip(p2[lo..hi].iter_mut().zip(&mut p3[lo..hi]));
+    for (q, ((a, b), (c, d))) in quads.zip(phases) {
+        (*a, *b, *c, *d) = (q[0], q[1], q[2], q[3]);
+    }
+}
+
+/// The inverse of [`split_phases`] for an output row: `out[4·tx + m]` = f(`q[m][tx]`) for every
+/// column of `out` (its last tile may be cut short).
+#[inline(always)]
+pub(super) fn merge_phases<F: Float>(q: [&[F]; 4], out: &mut [F], f: impl Fn(F) -> F) {
+    let (whole, part) = out.split_at_mut(out.len() / 4 * 4);
+    let n = whole.len() / 4;
+    // zipped slices, no index checks, so the loop vectorises
+    let phases = q[0][..n].iter().zip(&q[1][..n]).zip(q[2][..n].iter().zip(&q[3][..n]));
+    for (quad, ((&a, &b), (&c, &d))) in whole.chunks_exact_mut(4).zip(phases) {
+        (quad[0], quad[1], quad[2], quad[3]) = (f(a), f(b), f(c), f(d));
+    }
+    for (m, slot) in part.iter_mut().enumerate() {
+        // the cut tile n: columns 4·n + m
+        *slot = f(q[m][n]);
     }
 }
 
