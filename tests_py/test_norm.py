@@ -170,10 +170,7 @@ def test_eval_batch_norm_folded_into_conv_matches_both_layers_with_grads(bias):
         (y * mipnet.tensor(rand(y.shape, np.float64, seed=4))).sum().backward()
         return [y.numpy(), xt.grad.numpy()] + [p.grad.numpy() for p in params]
 
-    w, b = None, None
-
     def folded(xt):
-        nonlocal w, b
         w, b = bn.folded(conv)
         return M.conv2d(xt, w, b, 1, 1)
 

@@ -99,19 +99,22 @@ pub(super) fn input_rows<F: Float>(along: Along, isa: Isa, g: &Geom, xc: &[F], t
     let (ph, pw) = (g.pad[0] as isize, g.pad[1] as isize);
     // input row iy, None above or below the image
     let input_row = |iy: isize| (iy >= 0 && (iy as usize) < g.h).then(|| &xc[iy as usize * g.w..(iy as usize + 1) * g.w]);
-    if along == Along::Y {
-        // 8 padded input rows of Wo columns: r[s] = x[4·ty − ph + r, s − pw] for s in 0..Wo
-        for (r, row) in buf.patch.chunks_exact_mut(g.wo).take(8).enumerate() {
-            row.fill(F::zero());
-            if let Some(src) = input_row((TILE * ty) as isize - ph + r as isize) {
-                // columns s − pw for s in [pw, pw + W) ∩ [0, Wo)
-                let (s0, s1) = ((pw as usize).min(g.wo), (pw as usize + g.w).min(g.wo));
-                row[s0..s1].copy_from_slice(&src[..s1 - s0]);
+    let x_row = match along {
+        // along x, the one input row ty − ph, read as padded by pw columns in front
+        Along::X => input_row(ty as isize - ph),
+        Along::Y => {
+            // 8 padded input rows of Wo columns: r[s] = x[4·ty − ph + r, s − pw] for s in 0..Wo
+            for (r, row) in buf.patch.chunks_exact_mut(g.wo).take(8).enumerate() {
+                row.fill(F::zero());
+                if let Some(src) = input_row((TILE * ty) as isize - ph + r as isize) {
+                    // columns s − pw for s in [pw, pw + W) ∩ [0, Wo)
+                    let (s0, s1) = ((pw as usize).min(g.wo), (pw as usize + g.w).min(g.wo));
+                    row[s0..s1].copy_from_slice(&src[..s1 - s0]);
+                }
             }
+            None
         }
-    }
-    // along x, the one input row ty − ph, read as padded by pw columns in front
-    let x_row = if along == Along::X { input_row(ty as isize - ph) } else { None };
+    };
     input_row_isa(isa, along, x_row, pw as usize, g.wo, tw, buf, v, at, xi_stride);
 }
 
@@ -192,16 +195,20 @@ pub(super) fn grad_output_rows<F: Float>(along: Along, isa: Isa, g: &Geom, dyo: 
                                          at: usize, xi_stride: usize, buf: &mut Rows<F>) {
     // dY row oy, None below the image
     let dy_row = |oy: usize| (oy < g.ho).then(|| &dyo[oy * g.wo..(oy + 1) * g.wo]);
-    if along == Along::Y {
-        // dY rows 4·ty + i, i < 4, of Wo columns, zero below the image
-        for (i, row) in buf.patch.chunks_exact_mut(g.wo).take(TILE).enumerate() {
-            match dy_row(TILE * ty + i) {
-                Some(src) => row.copy_from_slice(src),
-                None => row.fill(F::zero()),
+    let x_row = match along {
+        // along x, the one dY row ty
+        Along::X => dy_row(ty),
+        Along::Y => {
+            // dY rows 4·ty + i, i < 4, of Wo columns, zero below the image
+            for (i, row) in buf.patch.chunks_exact_mut(g.wo).take(TILE).enumerate() {
+                match dy_row(TILE * ty + i) {
+                    Some(src) => row.copy_from_slice(src),
+                    None => row.fill(F::zero()),
+                }
             }
+            None
         }
-    }
-    let x_row = if along == Along::X { dy_row(ty) } else { None };
+    };
     grad_output_row_isa(isa, along, x_row, g.wo, tw, buf, dm, at, xi_stride);
 }
 
