@@ -108,6 +108,23 @@ def test_conv2d_bwd_skips_grads_not_requested():
     assert dx is None and db is None and dw.shape == w.shape
 
 
+def test_inference_conv2d_keeps_winograd_kernels_only_while_the_weights_stay_the_same():
+    # a no-grad pass keeps the transformed kernels of its Winograd convolutions (found again by the
+    # weight values): same result as a recorded pass, and an in-place weight update is not missed
+    x, w, b = _inputs((1, 32, 96, 96), (32, 32, 3, 3))
+    with mipnet.no_grad():
+        kept = [M.conv2d(x, w, b, padding=1).numpy() for _ in range(2)]
+    recorded = M.conv2d(mipnet.tensor(x, requires_grad=True), w, b, padding=1).detach().numpy()
+    np.testing.assert_array_equal(kept[0], recorded)
+    np.testing.assert_array_equal(kept[1], recorded)
+    w[:, :, 1, 1] += 0.5
+    with mipnet.no_grad():
+        updated = M.conv2d(x, w, b, padding=1).numpy()
+    ref = F.conv2d(torch.tensor(x), torch.tensor(w), torch.tensor(b), padding=1).numpy()
+    np.testing.assert_allclose(updated, ref, rtol=1e-4, atol=1e-4)
+    assert np.abs(updated - kept[0]).max() > 0.1
+
+
 def _raises(match, fn, exc=RuntimeError):
     with pytest.raises(exc, match=match):
         fn()

@@ -106,7 +106,7 @@ fn conv2d_fwd_f32_matches_f64_direct_sum() {
     // Winograd, which rounds its transforms too: measured 2.2e-4 here (outputs up to ~50,
     // unscaled weights), bound 5e-4
     for (winograd, bound) in [(Winograd::Off, 1e-4), (Winograd::On, 5e-4)] {
-        let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd };
+        let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd, reuse_kernels: false };
         let y = conv2d_fwd_ex(x32.view(), w32.view(), Some(b32.view()), &cfg, false, run).unwrap().into_dyn().mapv(f64::from);
         let err = max_abs_diff(&y, &want);
         assert!(err < bound, "{name} f32 {winograd:?}: max abs err {err}");
@@ -391,8 +391,8 @@ fn conv2d_pixel_major_weight_grad_for_strides_and_separable_kernels_gradcheck_f6
 /// f32 forward and gradients of `case` on one ISA path against the f64 direct computation.
 fn isa_case(isa: Isa, (name, xs, ws, stride, padding): Case, seed: u64) {
     use _core::gemm::Plan;
-    let plan = Conv2dRun { plan: Plan::<f32>::for_isa(isa).unwrap(), winograd: Winograd::Off };
-    let plan64 = Conv2dRun { plan: Plan::<f64>::for_isa(isa).unwrap(), winograd: Winograd::Off };
+    let plan = Conv2dRun { plan: Plan::<f32>::for_isa(isa).unwrap(), winograd: Winograd::Off, reuse_kernels: false };
+    let plan64 = Conv2dRun { plan: Plan::<f64>::for_isa(isa).unwrap(), winograd: Winograd::Off, reuse_kernels: false };
     let cfg = Conv2dCfg::new(stride, padding);
     let mut rng = Rng::new(seed);
     let (x, w, b) = inputs(&mut rng, &xs, &ws);
@@ -436,7 +436,7 @@ fn conv2d_fused_relu_equals_relu_of_conv_bitwise() {
         let (x, w, b) = inputs(&mut rng, &xs, &ws);
         let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
         for winograd in [Winograd::Off, Winograd::On] {
-            let run = Conv2dRun { plan: Plan::selected(), winograd };
+            let run = Conv2dRun { plan: Plan::selected(), winograd, reuse_kernels: false };
             let plain = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, false, run).unwrap().mapv(|v| v.max(0.0));
             let fused = conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, true, run).unwrap();
             assert_eq!(plain, fused, "{name} {winograd:?}");
@@ -474,7 +474,7 @@ fn conv2d_winograd_f64_matches_direct_sum() {
     // ISA path (the row transforms are compiled once per ISA)
     let mut rng = Rng::new(60);
     for isa in Isa::ALL.into_iter().filter(|i| i.supported()) {
-        let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::for_isa(isa).unwrap(), winograd: Winograd::On };
+        let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::for_isa(isa).unwrap(), winograd: Winograd::On, reuse_kernels: false };
         for &(name, xs, ws, stride, padding) in WINOGRAD_CASES {
             let cfg = Conv2dCfg::new(stride, padding);
             let (x, w, b) = inputs(&mut rng, &xs, &ws);
@@ -499,7 +499,7 @@ fn gradcheck_winograd(name: &str, xs: [usize; 4], ws: [usize; 4], cfg: Conv2dCfg
     let (x, w, b) = inputs(&mut rng, &xs, &ws);
     let y = conv2d_fwd(x.view(), w.view(), Some(b.view()), &cfg).unwrap();
     let g = rng.array(y.shape(), -1.0, 1.0);
-    let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::selected(), winograd: Winograd::On };
+    let run = Conv2dRun { plan: _core::gemm::Plan::<f64>::selected(), winograd: Winograd::On, reuse_kernels: false };
     let grads = conv2d_bwd_ex(x.view(), w.view(), g.view(), &cfg, Conv2dNeed::ALL, run).unwrap();
     let loss_x = |xp: &ArrayD<f64>| dot(&conv2d_fwd(xp.view(), w.view(), Some(b.view()), &cfg).unwrap().into_dyn(), &g);
     gradcheck(&format!("{name} dx"), &x, &grads.x.unwrap().into_dyn(), loss_x);
@@ -512,7 +512,7 @@ fn gradcheck_winograd(name: &str, xs: [usize; 4], ws: [usize; 4], cfg: Conv2dCfg
 fn weight_grads<F: _core::Float>(isa: Isa, x: &ArrayD<F>, w: &ArrayD<F>, g: &ArrayD<F>, cfg: &Conv2dCfg) -> [ArrayD<F>; 2] {
     let need = Conv2dNeed { x: false, w: true, b: false };
     [Winograd::Off, Winograd::On].map(|winograd| {
-        let run = Conv2dRun { plan: _core::gemm::Plan::<F>::for_isa(isa).unwrap(), winograd };
+        let run = Conv2dRun { plan: _core::gemm::Plan::<F>::for_isa(isa).unwrap(), winograd, reuse_kernels: false };
         conv2d_bwd_ex(x.view(), w.view(), g.view(), cfg, need, run).unwrap().w.unwrap().into_dyn()
     })
 }
@@ -573,7 +573,7 @@ fn conv2d_winograd_f32_error_against_f64_is_small() {
         let (x32, w32, b32) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
         let mut errs = vec![];
         for winograd in [Winograd::Off, Winograd::On] {
-            let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd };
+            let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd, reuse_kernels: false };
             let y = conv2d_fwd_ex(x32.view(), w32.view(), Some(b32.view()), &cfg, false, run).unwrap().into_dyn();
             errs.push(max_abs_diff(&y.mapv(f64::from), &want) / scale);
         }
@@ -592,7 +592,7 @@ fn conv2d_winograd_results_do_not_depend_on_the_thread_count() {
         let (x, w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
         let (ho, wo) = cfg.out_hw(xs[2], xs[3], ws[2], ws[3]).unwrap();
         let g = rng.array(&[xs[0], ws[0], ho, wo], -1.0, 1.0).mapv(|v| v as f32);
-        let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd: Winograd::On };
+        let run = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd: Winograd::On, reuse_kernels: false };
         let at = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| {
@@ -608,5 +608,28 @@ fn conv2d_winograd_results_do_not_depend_on_the_thread_count() {
             assert_eq!(dx1, dx, "{name} dx, {threads} threads");
             assert_eq!(dw1, dw, "{name} dw, {threads} threads");
         }
+    }
+}
+
+#[test]
+fn conv2d_winograd_kept_kernels_follow_the_weight_values() {
+    // a run that keeps transformed kernels gives the fresh transform's result bitwise, and a kernel
+    // changed in place (same buffer, as after an optimiser step) is transformed again, not reused
+    let mut rng = Rng::new(64);
+    for &(name, xs, ws, stride, padding) in WINOGRAD_CASES.iter().filter(|c| c.0.ends_with("64ch")) {
+        let cfg = Conv2dCfg::new(stride, padding);
+        let (x, w, b) = inputs(&mut rng, &xs, &ws);
+        let (x, mut w, b) = (x.mapv(|v| v as f32), w.mapv(|v| v as f32), b.mapv(|v| v as f32));
+        let fresh = Conv2dRun { plan: _core::gemm::Plan::<f32>::selected(), winograd: Winograd::On, reuse_kernels: false };
+        let kept = Conv2dRun { reuse_kernels: true, ..fresh };
+        let y = |w: &ArrayD<f32>, run| conv2d_fwd_ex(x.view(), w.view(), Some(b.view()), &cfg, false, run).unwrap();
+        for _ in 0..2 {
+            assert_eq!(y(&w, kept), y(&w, fresh), "{name}: kept kernel");
+        }
+        let before = y(&w, kept);
+        w.iter_mut().step_by(7).for_each(|v| *v = -*v);
+        let after = y(&w, kept);
+        assert_eq!(after, y(&w, fresh), "{name}: kernel changed in place");
+        assert_ne!(after, before, "{name}: the changed kernel changes the output");
     }
 }

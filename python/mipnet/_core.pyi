@@ -110,7 +110,8 @@ def convex_upsample_bwd(flow: Array, mask: Array, g: Array, rate: int = 4) -> tu
 
 # conv
 def conv2d_fwd(x: Array, weight: Array, bias: Array | None = None, stride: tuple[int, int] = (1, 1),
-               padding: tuple[int, int] = (0, 0), relu: bool = False, winograd: bool = True) -> Array: ...
+               padding: tuple[int, int] = (0, 0), relu: bool = False, winograd: bool = True,
+               reuse_kernels: bool = False) -> Array: ...
 def conv2d_bwd(x: Array, weight: Array, grad_output: Array, stride: tuple[int, int] = (1, 1),
                padding: tuple[int, int] = (0, 0), need_x: bool = True, need_w: bool = True,
                need_b: bool = True, winograd: bool = True) -> tuple[Array | None, Array | None, Array | None]: ...

@@ -156,6 +156,11 @@ impl<E: Float> Prepacked<E> {
         Prepacked { data, mpad, mr, kc: plan.kc, k }
     }
 
+    /// Bytes of the packed data.
+    pub(crate) fn bytes(&self) -> usize {
+        std::mem::size_of_val(self.data.as_slice())
+    }
+
     /// The packed data, after checking it was packed for `plan`'s MR and KC and for depth k, and
     /// that `row0` starts a panel.
     pub(crate) fn data(&self, plan: &Plan<E>, k: usize, row0: usize) -> Option<*const E> {

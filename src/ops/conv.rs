@@ -108,17 +108,20 @@ pub enum Winograd {
     On,
 }
 
-/// How a convolution runs: the GEMM plan (the ISA path) and the Winograd choice.
+/// How a convolution runs: the GEMM plan (the ISA path), the Winograd choice, and whether a
+/// Winograd forward keeps its transformed kernel for later calls with the same kernel bytes (for
+/// weights that stay fixed over many calls, as at inference; see `winograd/cache.rs`).
 #[derive(Clone, Copy, Debug)]
 pub struct Conv2dRun<'a, F> {
     pub plan: &'a Plan<F>,
     pub winograd: Winograd,
+    pub reuse_kernels: bool,
 }
 
 impl<F: Float> Conv2dRun<'static, F> {
-    /// The selected plan (`MIPNET_ISA`, else the widest ISA) and `Winograd::Auto`.
+    /// The selected plan (`MIPNET_ISA`, else the widest ISA), `Winograd::Auto`, no kernel reuse.
     pub fn selected() -> Self {
-        Conv2dRun { plan: Plan::selected(), winograd: Winograd::Auto }
+        Conv2dRun { plan: Plan::selected(), winograd: Winograd::Auto, reuse_kernels: false }
     }
 }
 
@@ -588,7 +591,7 @@ fn forward<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, b
                      -> Result<Array4<F>> {
     let plan = run.plan;
     if let (true, Some(w)) = (run.winograd_for(g), wm.as_slice()) {
-        return winograd::forward(plan, g, xs, w, bias, relu)?.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout);
+        return winograd::forward(plan, g, xs, w, bias, relu, run.reuse_kernels)?.into_shape_with_order((g.n, g.cout, g.ho, g.wo)).map_err(layout);
     }
     if tap_major::applies(g) {
         return tap_major::forward(run, g, xs, wm, bias, relu);

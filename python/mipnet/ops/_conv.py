@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .. import _core
-from ..autograd import Function
+from ..autograd import Function, is_grad_enabled
 from ..errors import ArgumentError
 from ..tensor import Tensor
 from ._common import as_tensor, pair
@@ -18,6 +18,14 @@ __all__ = ["conv2d", "conv2d_relu"]
 WINOGRAD = True
 
 
+def reuse_kernels() -> bool:
+    """Whether a forward convolution keeps its Winograd-transformed kernel for later calls with the
+    same weight values: in a no-grad pass (inference), where weights stay fixed and the update block
+    runs 6 + 6 times with the same ones; not while recording for a backward (training changes the
+    weights every step, and the kept transforms would only hold memory)."""
+    return not is_grad_enabled()
+
+
 class _Conv2d(Function):
     name = "conv2d"
     fresh_grads = True
@@ -26,7 +34,7 @@ class _Conv2d(Function):
     def forward(ctx, x, weight, bias, stride, padding):
         ctx.save_for_backward(x, weight)
         ctx.stride, ctx.padding = stride, padding
-        return _core.conv2d_fwd(x, weight, bias, stride, padding, winograd=WINOGRAD)
+        return _core.conv2d_fwd(x, weight, bias, stride, padding, winograd=WINOGRAD, reuse_kernels=reuse_kernels())
 
     @staticmethod
     def backward(ctx, g):
@@ -43,7 +51,8 @@ class _Conv2dRelu(Function):
 
     @staticmethod
     def forward(ctx, x, weight, bias, stride, padding):
-        y = _core.conv2d_fwd(x, weight, bias, stride, padding, relu=True, winograd=WINOGRAD)
+        y = _core.conv2d_fwd(x, weight, bias, stride, padding, relu=True, winograd=WINOGRAD,
+                             reuse_kernels=reuse_kernels())
         ctx.save_for_backward(x, weight, y)
         ctx.stride, ctx.padding = stride, padding
         return y

@@ -70,7 +70,8 @@ class _GruCandidate(Function):
     def forward(ctx, zr, hx, weight, bias, padding):
         ctx.save_for_backward(zr, hx, weight)
         ctx.padding = padding
-        return _core.conv2d_fwd(_core.gru_reset_fwd(zr, hx), weight, bias, (1, 1), padding, winograd=_conv.WINOGRAD)
+        return _core.conv2d_fwd(_core.gru_reset_fwd(zr, hx), weight, bias, (1, 1), padding, winograd=_conv.WINOGRAD,
+                                reuse_kernels=_conv.reuse_kernels())
 
     @staticmethod
     def backward(ctx, g):

@@ -24,7 +24,9 @@ use ndarray::{Array2, Array3};
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
 use std::ops::Range;
+use std::sync::Arc;
 
+mod cache;
 mod f4_5;
 mod f4x4_3x3;
 mod lanes;
@@ -252,12 +254,14 @@ fn tasks<F>(plan: &Plan<F>, g: &Geom, tw: usize, th: usize, band_tiles: usize) -
     out
 }
 
-/// y = conv2d(x, w) (+ b, then ReLU) for a geometry where [`applies`] holds.
-pub(super) fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], w: &[F], bias: Option<&[F]>, relu: bool)
-                                -> Result<Array3<F>> {
+/// y = conv2d(x, w) (+ b, then ReLU) for a geometry where [`applies`] holds; with `reuse_kernels`
+/// the transformed kernel comes from (or goes to) the [`cache`].
+pub(super) fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], w: &[F], bias: Option<&[F]>, relu: bool,
+                                reuse_kernels: bool) -> Result<Array3<F>> {
     let scheme = Scheme::expect(g);
     let (th, tw) = scheme.tiles(g);
-    let u = weights(scheme, plan, w, g.cout, g.cin);
+    let transform = || weights(scheme, plan, w, g.cout, g.cin);
+    let u = if reuse_kernels { cache::transformed(scheme, plan, w, g.cout, g.cin, transform) } else { Arc::new(transform()) };
     // a band's V (XI x Cin x T) and M (XI x Cout x T) fill about the L2 cache, at least 2 micro-panels
     let l2 = gemm::cpu_info().l2;
     let band_tiles = (l2 / (scheme.xi() * std::mem::size_of::<F>() * (g.cin + g.cout))).max(4 * plan.nr);
