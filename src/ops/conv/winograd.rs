@@ -255,13 +255,18 @@ fn tasks<F>(plan: &Plan<F>, g: &Geom, tw: usize, th: usize, band_tiles: usize) -
 }
 
 /// y = conv2d(x, w) (+ b, then ReLU) for a geometry where [`applies`] holds; with `reuse_kernels`
-/// the transformed kernel comes from (or goes to) the [`cache`].
+/// the transformed kernel comes from (or goes to) the [`cache`], without it the cache is emptied.
 pub(super) fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], w: &[F], bias: Option<&[F]>, relu: bool,
                                 reuse_kernels: bool) -> Result<Array3<F>> {
     let scheme = Scheme::expect(g);
     let (th, tw) = scheme.tiles(g);
     let transform = || weights(scheme, plan, w, g.cout, g.cin);
-    let u = if reuse_kernels { cache::transformed(scheme, plan, w, g.cout, g.cin, transform) } else { Arc::new(transform()) };
+    let u = if reuse_kernels {
+        cache::transformed(scheme, plan, w, g.cout, g.cin, transform)
+    } else {
+        cache::release();
+        Arc::new(transform())
+    };
     // a band's V (XI x Cin x T) and M (XI x Cout x T) fill about the L2 cache, at least 2 micro-panels
     let l2 = gemm::cpu_info().l2;
     let band_tiles = (l2 / (scheme.xi() * std::mem::size_of::<F>() * (g.cin + g.cout))).max(4 * plan.nr);

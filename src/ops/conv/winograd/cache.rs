@@ -6,7 +6,9 @@
 //! convolutions of a no-grad pass, whose weights stay fixed) keeps the packed `U` of a kernel and
 //! gets it again when a later call brings a kernel with the same bytes for the same scheme, shapes
 //! and GEMM plan. Training does not: its weights change every step, and its dX kernels are fresh
-//! arrays, so it would only hold memory (a 128x256 batch-4 step's peak grew from 1.34 to 1.6 GB).
+//! arrays, so it would only hold memory (a 128x256 batch-4 step's peak grew from 1.34 to 1.6 GB);
+//! and a Winograd forward that does not keep kernels empties the cache ([`release`]), so a training
+//! run does not hold on to the kernels of its last validation pass.
 //!
 //! An entry is found by comparing the kernel's bytes with a copy kept in the entry, so a kernel
 //! changed in place (an optimiser step) is transformed again, and a new kernel that reuses a freed
@@ -103,4 +105,15 @@ pub(super) fn transformed<F: Float>(scheme: Scheme, plan: &Plan<F>, w: &[F], cou
         cache.bytes += bytes;
     }
     u
+}
+
+/// Drops every entry (a run that does not keep kernels: the weights are being trained).
+pub(super) fn release() {
+    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    if !cache.entries.is_empty() {
+        let entries = std::mem::take(&mut cache.entries);
+        cache.bytes = 0;
+        drop(cache);
+        drop(entries);
+    }
 }
