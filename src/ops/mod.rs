@@ -13,7 +13,7 @@
 //! | iAFF attentional gate: σ(L + G) ⊙ x + (1 - σ(L + G)) ⊙ y, G broadcast over H, W | `gate::attention_gate_fwd` | `gate::attention_gate_bwd` (local, global, x, y) | sigmoid/mul/add (spec a.3) |
 //! | GRU reset gate: [σ(r̃) ⊙ h, x] | `gru::gru_reset_fwd` | `gru::gru_reset_bwd` (zr, hx) | `torch.cat([torch.sigmoid(r) * h, x], 1)` |
 //! | GRU update: (1 - σ(z̃)) ⊙ h + σ(z̃) ⊙ tanh(q̃) (optionally followed by x) | `gru::gru_update_fwd` | `gru::gru_update_bwd` (zr, q, hx) | sigmoid/tanh/mul/add (spec a.8) |
-//! | conv2d (any kernel, stride, per-axis zero padding, bias, optional fused ReLU; Winograd F(4x4, 3x3) / F(4, 5) for stride-1 3x3 / 1x5 / 5x1 in f32; one or two outputs at stride 1 as a tap-major pointwise GEMM + shift-add) | `conv::conv2d_fwd` | `conv::conv2d_bwd` (x, w, b) | `F.conv2d` |
+//! | conv2d (any kernel, stride, per-axis zero padding, bias, optional fused ReLU; Winograd F(4x4, 3x3) / F(4, 5) for stride-1 3x3 / 1x5 / 5x1 in f32, transformed kernels kept across no-grad calls; one or two outputs at stride 1 as a tap-major pointwise GEMM + shift-add) | `conv::conv2d_fwd` | `conv::conv2d_bwd` (x, w, b) | `F.conv2d` |
 //! | instance norm (optional affine) | `norm::instance_norm_fwd` | `norm::instance_norm_bwd` (x, w, b) | `F.instance_norm` |
 //! | batch norm (train / eval) | `norm::batch_norm_fwd` | `norm::batch_norm_bwd` (x, w, b) | `F.batch_norm` |
 //! | avg_pool2d (padding, ceil_mode, count_include_pad, divisor_override) | `pool::avg_pool2d_fwd` | `pool::avg_pool2d_bwd` (x) | `F.avg_pool2d` |
