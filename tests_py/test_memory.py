@@ -64,7 +64,7 @@ def test_the_training_count_is_what_the_graph_saves(config, heads, monkeypatch):
     assert abs(counted / graph - 1) < 0.03, f"counted {counted / 2**20:.2f} MiB, graph holds {graph / 2**20:.2f} MiB"
 
 
-@pytest.mark.parametrize("mode, h, w, n", [("eval", 128, 160, 1), ("train", 64, 96, 2)])
+@pytest.mark.parametrize("mode, h, w, n", [("eval", 128, 160, 1), ("eval", 384, 512, 1), ("train", 64, 96, 2)])
 def test_the_estimate_matches_the_peak_of_a_fresh_process(mode, h, w, n):
     predicted = memory.estimate(h, w, n, mode).total
     measured = memory.measure_peak(h, w, n, mode)

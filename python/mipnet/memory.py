@@ -45,6 +45,10 @@ HEAD_CHANNELS = 400
 #: Training keeps a level's prediction heads while all of them take at most this; above it they are
 #: recomputed in the backward (which costs about 5% of a step at 128x256 batch 4).
 HEAD_KEEP_BYTES = 256 * MiB
+#: The most bytes an eval process keeps of Winograd-transformed kernels (``src/ops/conv/winograd/cache.rs``).
+KERNEL_CACHE_BYTES = 128 * MiB
+#: Fewest tiles of 4x4 pixels over the batch for a Winograd convolution (``src/ops/conv/winograd.rs``).
+WINOGRAD_MIN_TILES = 512
 
 
 def recompute_heads(level_pixels: int, sub_updates: int, itemsize: int = 4) -> bool:
@@ -193,6 +197,24 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
             "backward": backward}
 
 
+def kept_kernel_bytes(model: Any = None) -> int:
+    """Bytes an eval process keeps for the float32 Winograd kernels of ``model`` (default: a full MIPNet):
+    each 3x3, 1x5 or 5x1 kernel of 32 channels or more in and out, copied, and transformed into 36 (3x3) or
+    8 values per channel pair, its output channels padded to 8."""
+    if model is None:
+        from .model import MIPNet
+
+        model = MIPNet()
+    total = 0
+    for p in model.parameters():
+        shape = p.data.shape
+        if len(shape) == 4 and min(shape[:2]) >= 32 and shape[2:] in ((3, 3), (1, 5), (5, 1)):
+            cout, cin, kh, kw = shape
+            xi = 36 if (kh, kw) == (3, 3) else 8
+            total += 4 * (cout * cin * kh * kw + -(-cout // 8) * 8 * cin * xi)
+    return total
+
+
 def model_bytes(model: Any = None, itemsize: int = 4) -> int:
     """Bytes of the parameters and buffers of ``model`` (default: a full MIPNet of ``itemsize``),
     counted without copying them."""
@@ -214,6 +236,9 @@ def estimate(height: int, width: int, batch: int = 1, mode: str = "eval", iters:
     extra = activation_bytes(height, width, batch, mode, tuple(iters), config, itemsize)
     if mode == "train":
         extra += weights  # the gradient of every parameter
+    elif itemsize == 4 and (height // 16) * (width // 16) * batch >= WINOGRAD_MIN_TILES:
+        # the 1/4 level's convolutions take Winograd, and inference keeps their transformed kernels
+        extra += min(KERNEL_CACHE_BYTES, kept_kernel_bytes(model))
     return MemoryEstimate(mode, height, width, batch, (int(iters[0]), int(iters[1])), int(extra),
                           BASE_PROCESS_BYTES + weights)
 
