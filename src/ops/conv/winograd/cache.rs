@@ -40,7 +40,8 @@ struct Key {
 struct Entry {
     key: Key,
     /// Where the kernel was when it was cached: a miss at the same address with the same key replaces
-    /// the entry (the kernel was changed in place), so training keeps one entry per kernel.
+    /// the entry (the kernel was changed in place, as when new weights are loaded into a model), so the
+    /// cache holds one entry per kernel buffer.
     address: usize,
     /// The kernel's bytes.
     kernel: Box<[u8]>,
@@ -51,7 +52,6 @@ struct Entry {
     used: u64,
 }
 
-#[derive(Default)]
 struct Cache {
     entries: Vec<Entry>,
     bytes: usize,
