@@ -223,11 +223,12 @@ def backward(root, grad: np.ndarray) -> None:
     owned: set[int] = set()  # keys whose gradient array the tape alone references (summed into in place)
     for item in reversed(_topological_order(root._node)):
         g = grads.pop(id(item), None)
+        mine = id(item) in owned
         owned.discard(id(item))
         if g is None:
             continue
         if isinstance(item, Tensor):
-            _accumulate(item, g)
+            _accumulate(item, g, mine)
             continue
         prof = _profiler.ACTIVE
         scope = item.ctx.scope
@@ -277,11 +278,12 @@ def _add_grad(grads: dict, owned: set, edge, ig: Any, fresh: bool) -> None:
         owned.add(key)
 
 
-def _accumulate(leaf, g: np.ndarray) -> None:
+def _accumulate(leaf, g: np.ndarray, mine: bool = False) -> None:
+    """leaf.grad += g; a first gradient the tape alone references (``mine``) becomes ``.grad`` as it is."""
     from .tensor import Tensor
 
     if leaf.grad is None:
-        leaf.grad = Tensor._wrap(g.copy())
+        leaf.grad = Tensor._wrap(g if mine else g.copy())
     else:
         total = leaf.grad.data
         leaf.grad = Tensor._wrap(_core.binary_fwd(total, np.asarray(g, dtype=total.dtype), "add"))
