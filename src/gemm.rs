@@ -33,7 +33,7 @@ pub(crate) use pack::{InPlace, PackB, Prepacked, SourceA, Strided};
 pub use peak::fma_peak_gflops;
 
 use crate::{Error, Float, Result};
-use ndarray::{ArrayView2, ArrayViewMut2, Axis};
+use ndarray::{Array2, ArrayView2, ArrayViewMut2};
 use rayon::prelude::*;
 use std::cell::RefCell;
 use std::sync::OnceLock;
@@ -476,25 +476,90 @@ pub fn gemm_par<F: Float>(alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F,
 /// [`gemm_par`] on an explicit plan.
 pub fn gemm_par_with<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, beta: F,
                                mut c: ArrayViewMut2<F>) {
-    let (m, n) = c.dim();
-    let threads = rayon::current_num_threads();
-    let flops = m * n * a.ncols();
-    let one = |a, b, c| gemm_ex(plan, alpha, a, b, beta, c, Epilogue::default());
-    if threads <= 1 || flops < (1 << 20) {
-        return one(a, b, c);
+    let (m, k) = a.dim();
+    assert!(b.nrows() == k && c.dim() == (m, b.ncols()), "gemm: inner dims {k} vs {}, C {:?} vs ({m},{})", b.nrows(),
+            c.dim(), b.ncols());
+    // C = beta·C (beta is 0 or C is read from its first K block on)
+    let load = beta != F::zero();
+    if load && beta != F::one() {
+        c.mapv_inplace(|v| beta * v);
     }
-    // blocks of whole micro-tiles, so no thread computes a partial panel it could have avoided
-    if n >= m {
-        let block = n.div_ceil(threads).next_multiple_of(plan.nr);
-        c.axis_chunks_iter_mut(Axis(1), block)
-            .into_par_iter()
-            .zip(b.axis_chunks_iter(Axis(1), block).into_par_iter())
-            .for_each(|(cb, bb)| one(a, bb, cb));
-    } else {
-        let block = m.div_ceil(threads).next_multiple_of(plan.mr);
-        c.axis_chunks_iter_mut(Axis(0), block)
-            .into_par_iter()
-            .zip(a.axis_chunks_iter(Axis(0), block).into_par_iter())
-            .for_each(|(cb, ab)| one(ab, b, cb));
+    let sc = c.strides().to_vec();
+    // SAFETY: the views own valid memory of the checked shapes; C is a unique mutable view.
+    unsafe { run_par(plan, alpha, a, b, load, c.as_mut_ptr(), sc[0], sc[1]) }
+}
+
+/// A·B into a new array on every thread of the pool (C is written, never zeroed first): the
+/// benchmark's and the binding's matrix product.
+pub fn matmul_par<F: Float>(a: ArrayView2<F>, b: ArrayView2<F>) -> Array2<F> {
+    let (m, n) = (a.nrows(), b.ncols());
+    assert_eq!(a.ncols(), b.nrows(), "gemm: inner dims");
+    let mut c = Array2::<F>::uninit((m, n));
+    // SAFETY: C is m x n, row-major and unaliased; its chains start from 0, so every element is
+    // written and none is read.
+    unsafe {
+        run_par(Plan::selected(), F::one(), a, b, false, c.as_mut_ptr().cast(), n as isize, 1);
+        c.assume_init()
     }
 }
+
+/// C (m x n at `c`, strides rsc, csc) <- (C if `load`, else 0) + alpha·A·B over the pool's threads. Wide C: A is
+/// packed once (in parallel) and shared, and each task multiplies it by a block of B's columns;
+/// tall C: each task packs and multiplies its own block of A's rows by all of B. Blocks are whole
+/// micro-panels, so no thread computes a partial panel it could have avoided.
+///
+/// # Safety
+/// C is valid and writable for m x n elements at those strides and aliases neither A nor B.
+#[allow(clippy::too_many_arguments)]
+unsafe fn run_par<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: ArrayView2<F>, load: bool, c: *mut F,
+                            rsc: isize, csc: isize) {
+    let init = || if load { Init::Load } else { Init::Zero };
+    let ((m, k), n) = (a.dim(), b.ncols());
+    let threads = rayon::current_num_threads();
+    let strided = |v: &ArrayView2<F>, scale: F| {
+        let s = v.strides();
+        Strided { ptr: v.as_ptr(), rows: v.nrows(), cols: v.ncols(), rs: s[0], cs: s[1], scale }
+    };
+    let (sa, sb) = (strided(&a, alpha), strided(&b, F::one()));
+    let c = SendPtr(c);
+    if threads <= 1 || m * n * k < (1 << 20) {
+        // SAFETY: forwarded contract.
+        return unsafe { run(plan, m, n, k, SourceA::Strided(&sa), &sb, c.get(), rsc, csc, init(), false) };
+    }
+    if n >= m {
+        let packed = Prepacked::new(plan, &sa);
+        let block = n.div_ceil(threads).next_multiple_of(plan.nr);
+        (0..n).step_by(block).collect::<Vec<_>>().into_par_iter().for_each(|j0| {
+            let cols = block.min(n - j0);
+            // B columns j0.. and C columns j0..: b + j0·cs, c + j0·csc
+            let bj = Strided { ptr: sb.at(0, j0), cols, ..sb };
+            // SAFETY: each task writes its own columns of C; A's panels cover all of its rows over K.
+            unsafe { run(plan, m, cols, k, SourceA::Rows(&packed, 0), &bj, c.get().wrapping_offset(j0 as isize * csc), rsc, csc,
+                         init(), false) };
+        });
+    } else {
+        let block = m.div_ceil(threads).next_multiple_of(plan.mr);
+        (0..m).step_by(block).collect::<Vec<_>>().into_par_iter().for_each(|i0| {
+            let rows = block.min(m - i0);
+            // A rows i0.. and C rows i0..: a + i0·rs, c + i0·rsc
+            let ai = Strided { ptr: sa.at(i0, 0), rows, ..sa };
+            // SAFETY: each task writes its own rows of C.
+            unsafe { run(plan, rows, n, k, SourceA::Strided(&ai), &sb, c.get().wrapping_offset(i0 as isize * rsc), rsc, csc,
+                         init(), false) };
+        });
+    }
+}
+
+/// A raw pointer the tasks of [`run_par`] share, each writing its own part.
+#[derive(Clone, Copy)]
+struct SendPtr<E>(*mut E);
+
+impl<E> SendPtr<E> {
+    fn get(self) -> *mut E {
+        self.0
+    }
+}
+// SAFETY: the tasks that share it write disjoint elements.
+unsafe impl<E> Send for SendPtr<E> {}
+// SAFETY: as above.
+unsafe impl<E> Sync for SendPtr<E> {}

@@ -4,7 +4,7 @@
 //! bitwise equal on the two FMA paths; MIPNET_ISA parsing; the measured peak.
 mod common;
 
-use _core::gemm::{cpu_info, fma_peak_gflops, gemm, gemm_ex, gemm_par_with, Epilogue, Isa, Plan};
+use _core::gemm::{cpu_info, fma_peak_gflops, gemm, gemm_ex, gemm_par_with, matmul_par, Epilogue, Isa, Plan};
 use common::Rng;
 use ndarray::{Array2, ShapeBuilder};
 
@@ -134,6 +134,38 @@ fn gemm_result_does_not_depend_on_block_sizes_or_split_and_fma_paths_agree_bitwi
     // AVX-512 and AVX2 fuse every multiply-add of the same chains: the same bits
     for w in fma_results.windows(2) {
         assert_eq!(w[0].1, w[1].1, "{} vs {}", w[0].0.name(), w[1].0.name());
+    }
+}
+
+#[test]
+fn parallel_gemm_wide_and_tall_equals_the_one_thread_product_bitwise() {
+    let mut rng = Rng::new(8);
+    // wide C (A packed once and shared by the column tasks) and tall C (row tasks), transposed A
+    for (m, k, n, a_col_major) in [(77, 1500, 301, false), (301, 700, 77, true), (40, 3000, 500, true)] {
+        let (a, b) = (random(&mut rng, m, k, a_col_major), random(&mut rng, k, n, false));
+        let c0 = random(&mut rng, m, n, false);
+        for isa in paths() {
+            let plan = Plan::<f32>::for_isa(isa).unwrap();
+            // C = 0.5·A·B + beta·C0 on one thread
+            let one = |beta: f32| {
+                let mut c = c0.clone();
+                gemm_ex(plan, 0.5, a.view(), b.view(), beta, c.view_mut(), Epilogue::default());
+                c
+            };
+            for threads in [2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                for beta in [0.0, 1.0, 0.25] {
+                    let mut cp = c0.clone();
+                    pool.install(|| gemm_par_with(plan, 0.5, a.view(), b.view(), beta, cp.view_mut()));
+                    assert_eq!(one(beta), cp, "{} {m}x{k}x{n} beta {beta} on {threads} threads", isa.name());
+                }
+            }
+        }
+        // the binding's product: the selected path, every element written
+        let mut want = Array2::<f32>::zeros((m, n));
+        gemm(1.0, a.view(), b.view(), 0.0, want.view_mut());
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        assert_eq!(pool.install(|| matmul_par(a.view(), b.view())), want, "matmul_par {m}x{k}x{n}");
     }
 }
 

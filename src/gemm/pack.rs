@@ -52,7 +52,7 @@ unsafe impl<E: Sync> Sync for Strided<E> {}
 
 impl<E: Float> Strided<E> {
     /// Address of element (i, j).
-    fn at(&self, i: usize, j: usize) -> *const E {
+    pub(crate) fn at(&self, i: usize, j: usize) -> *const E {
         self.ptr.wrapping_offset(i as isize * self.rs + j as isize * self.cs)
     }
 }

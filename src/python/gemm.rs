@@ -10,7 +10,7 @@ use super::convert::{arr, float_dispatch, run_kernel};
 use crate::gemm::{cpu_info, fma_peak_gflops as peak, Isa, Plan};
 use crate::{Error, Float};
 
-/// a · b through mipnet's GEMM (`gemm_par`), for benchmarking it.
+/// a · b through mipnet's GEMM (`matmul_par`), for benchmarking it.
 ///
 /// Args:
 ///     a: (m, k) float32/float64 array.
@@ -29,10 +29,8 @@ fn gemm_fwd<'py>(py: Python<'py>, a: &Bound<'py, PyAny>, b: &Bound<'py, PyAny>) 
             if a2.ncols() != b2.nrows() {
                 return Err(Error::shape(GEMM, "a.shape[1] must equal b.shape[0]", &[("a", a2.shape()), ("b", b2.shape())]));
             }
-            let mut c = numpy::ndarray::Array2::<F>::zeros((a2.nrows(), b2.ncols()));
             // C = A · B
-            crate::gemm::gemm_par(F::c(1.0), a2, b2, F::c(0.0), c.view_mut());
-            Ok(c)
+            Ok(crate::gemm::matmul_par(a2, b2))
         })?;
         Ok(c.into_pyarray(py).into_any())
     })
