@@ -490,17 +490,18 @@ pub fn gemm_par_with<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: Ar
 }
 
 /// A·B into a new array on every thread of the pool (C is written, never zeroed first): the
-/// benchmark's and the binding's matrix product.
-pub fn matmul_par<F: Float>(a: ArrayView2<F>, b: ArrayView2<F>) -> Array2<F> {
+/// binding's matrix product. An output too large to allocate is an error naming `op`.
+pub fn matmul_par<F: Float>(op: &'static str, a: ArrayView2<F>, b: ArrayView2<F>) -> Result<Array2<F>> {
     let (m, n) = (a.nrows(), b.ncols());
     assert_eq!(a.ncols(), b.nrows(), "gemm: inner dims");
-    let mut c = Array2::<F>::uninit((m, n));
-    // SAFETY: C is m x n, row-major and unaliased; its chains start from 0, so every element is
-    // written and none is read.
+    let (mut c, len) = crate::tensor::reserve::<F>(op, &[m, n])?;
+    // SAFETY: C has room for m x n elements, row-major and unaliased; its chains start from 0, so
+    // every element is written and none is read before.
     unsafe {
-        run_par(Plan::selected(), F::one(), a, b, false, c.as_mut_ptr().cast(), n as isize, 1);
-        c.assume_init()
+        run_par(Plan::selected(), F::one(), a, b, false, c.as_mut_ptr(), n as isize, 1);
+        c.set_len(len);
     }
+    Ok(Array2::from_shape_vec((m, n), c).expect("length equals the shape's size"))
 }
 
 /// C (m x n at `c`, strides rsc, csc) <- (C if `load`, else 0) + alpha·A·B over the pool's threads. Wide C: A is

@@ -27,6 +27,17 @@ pub fn check_same_shape(op: &'static str, a: (&'static str, &[usize]), b: (&'sta
     Ok(())
 }
 
+/// An empty vector with room for the elements of `shape`, and their count, for a kernel to write; a size
+/// that overflows or cannot be allocated is an error naming `op`.
+pub fn reserve<F>(op: &'static str, shape: &[usize]) -> Result<(Vec<F>, usize)> {
+    let too_big = || Error::shape(op, "the output is too large to allocate", &[("output", shape)]);
+    let len = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))
+        .filter(|&n| n.checked_mul(std::mem::size_of::<F>()).is_some_and(|b| b <= isize::MAX as usize)).ok_or_else(too_big)?;
+    let mut v = Vec::new();
+    v.try_reserve_exact(len).map_err(|_| too_big())?;
+    Ok((v, len))
+}
+
 /// A zero-filled standard-layout array, like `Array::zeros`, for kernel outputs; a shape whose size
 /// overflows or cannot be allocated is an error naming `op` instead of a panic or an abort.
 ///
@@ -35,10 +46,7 @@ pub fn check_same_shape(op: &'static str, a: (&'static str, &[usize]), b: (&'sta
 pub fn zeros<F: crate::Float, D: Dimension>(op: &'static str, shape: impl ndarray::IntoDimension<Dim = D>) -> Result<ndarray::Array<F, D>> {
     use rayon::prelude::*;
     let dim = shape.into_dimension();
-    let too_big = || Error::shape(op, "the output is too large to allocate", &[("output", dim.slice())]);
-    let len = dim.size_checked().filter(|&n| n.checked_mul(std::mem::size_of::<F>()).is_some_and(|b| b <= isize::MAX as usize)).ok_or_else(too_big)?;
-    let mut v = Vec::<F>::new();
-    v.try_reserve_exact(len).map_err(|_| too_big())?;
+    let (mut v, len) = reserve::<F>(op, dim.slice())?;
     v.spare_capacity_mut()[..len].par_chunks_mut(1 << 16).for_each(|c| {
         c.iter_mut().for_each(|x| {
             x.write(F::zero());
@@ -73,11 +81,7 @@ pub fn par_filled_in<F: crate::Float>(op: &'static str, shape: &[usize], chunk: 
                                       fill: impl Fn(usize, &mut [std::mem::MaybeUninit<F>]) + Sync) -> Result<ndarray::ArrayD<F>> {
     use rayon::prelude::*;
     let chunk = chunk.max(1);
-    let too_big = || Error::shape(op, "the output is too large to allocate", &[("output", shape)]);
-    let len = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))
-        .filter(|&n| n.checked_mul(std::mem::size_of::<F>()).is_some_and(|b| b <= isize::MAX as usize)).ok_or_else(too_big)?;
-    let mut v = Vec::<F>::new();
-    v.try_reserve_exact(len).map_err(|_| too_big())?;
+    let (mut v, len) = reserve::<F>(op, shape)?;
     v.spare_capacity_mut()[..len].par_chunks_mut(chunk).enumerate().for_each(|(k, c)| fill(k * chunk, c));
     // SAFETY: `fill` wrote every element of every chunk, which together cover the first `len` elements.
     unsafe { v.set_len(len) };

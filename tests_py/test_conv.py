@@ -173,6 +173,14 @@ def test_gemm_fwd_matches_numpy_and_checks_shapes():
     a, b = rand((70, 33)), rand((33, 90), seed=1)
     np.testing.assert_allclose(_core.gemm_fwd(a, b), a @ b, rtol=1e-5, atol=1e-5)
     _raises(r"gemm: a\.shape\[1\] must equal b\.shape\[0\].*\[70, 33\].*\[34, 90\]", lambda: _core.gemm_fwd(a, rand((34, 90))))
+    # large enough for both threads (A packed once for both column blocks), wide and tall
+    for m, k, n in [(150, 300, 700), (700, 300, 150)]:
+        a, b = rand((m, k)), rand((k, n), seed=2)
+        np.testing.assert_allclose(_core.gemm_fwd(a, b), a.astype(np.float64) @ b, rtol=1e-4, atol=1e-4)
+    # an output too large to allocate is an error naming the op and the shape, not an abort
+    one = np.float32(1)
+    _raises(r"gemm: the output is too large to allocate.*\[1048576, 1099511627776\]",
+            lambda: _core.gemm_fwd(np.broadcast_to(one, (1 << 20, 1)), np.broadcast_to(one, (1, 1 << 40))))
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

@@ -30,7 +30,7 @@ fn gemm_fwd<'py>(py: Python<'py>, a: &Bound<'py, PyAny>, b: &Bound<'py, PyAny>) 
                 return Err(Error::shape(GEMM, "a.shape[1] must equal b.shape[0]", &[("a", a2.shape()), ("b", b2.shape())]));
             }
             // C = A · B
-            Ok(crate::gemm::matmul_par(a2, b2))
+            crate::gemm::matmul_par(GEMM, a2, b2)
         })?;
         Ok(c.into_pyarray(py).into_any())
     })
