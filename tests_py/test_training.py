@@ -311,3 +311,35 @@ def test_shipped_weights_carry_the_history_of_their_init(tmp_path):
     failed = subprocess.run([sys.executable, ship, first, "--weights", "model.safetensors", "--out", shipped_mean,
                              "--average", shipped_second], capture_output=True, text=True)
     assert failed.returncode != 0 and "not earlier" in failed.stderr
+
+
+def test_campaign_history_reads_every_committed_version_of_the_weights(tmp_path):
+    # scripts/campaign_history.py: steps and validation EPE from each committed version's metadata, oldest first
+    import importlib.util
+    from safetensors.numpy import save_file
+    script = os.path.join(os.path.dirname(__file__), "..", "scripts", "campaign_history.py")
+    spec = importlib.util.spec_from_file_location("campaign_history", script)
+    history = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(history)
+    repo, weights = tmp_path / "repo", tmp_path / "repo" / history.WEIGHTS
+    weights.parent.mkdir(parents=True)
+    git = ["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run(git[:3] + ["init", "-q"], check=True)
+    setup = json.dumps({"pairs": 32, "size": [384, 512]})
+    versions = [({"step": "10"}, None), ({"step": "20", "validation_setup": setup}, 2.0),
+                ({"step": "30", "validation_setup": setup}, 1.5)]
+    for meta, epe in versions:
+        if epe is not None:
+            table = {"air": {"epe": epe / 4}, "turbid": {"epe": epe}, "cones": {"epe": epe + 1}}
+            meta = dict(meta, validation=json.dumps(table), validation_sgbm=json.dumps({"air": {"epe": 4.0}}))
+        save_file({"w": np.zeros(2, np.float16)}, str(weights), metadata=meta)
+        subprocess.run(git + ["add", "-A"], check=True)
+        subprocess.run(git + ["commit", "-qm", meta["step"]], check=True)
+    points = history.history(str(repo))
+    # the first version has no validation table: left out
+    assert [p["step"] for p in points] == [20, 30]
+    assert [p["epe"]["turbid"] for p in points] == [2.0, 1.5] and points[1]["epe"]["cones"] == 2.5
+    assert points[0]["setup"] == "32 pairs, 384x512" and points[1]["sgbm"] == {"air": 4.0}
+    out = tmp_path / "history.png"
+    history.plot(points, str(out))
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
