@@ -5,11 +5,11 @@
 //! run time from the CPU's caches:
 //!
 //! ```text
-//! for ic in 0..m step MC:                 A slab MC x KC packed once per (ic, pc), reused by every jc
-//!   for pc in 0..k step KC:
-//!     pack A[ic.., pc..] into MR-row panels
-//!     for jc in 0..n step NC:             B block KC x NC packed row-major: stays in L2
-//!       for ir in 0..MC step MR:          A micro-panel MR x KC: stays in L1 across the jr loop
+//! for ic in 0..m step MC':                MC' = MC·KC/K rows of A packed into MR-row panels over all of K
+//!                                         (conv weights: packed once per call, `Prepacked`)
+//!   for jc in 0..n step NC:
+//!     for pc in 0..k step KC:             B block KC x NC packed row-major (or read in place): stays in L2
+//!       for ir in 0..MC' step MR:         A micro-panel MR x KC: stays in L1 across the jr loop
 //!         for jr in 0..NC step NR:        micro-kernel: MR x NR tile of C in registers, NR columns of B
 //! ```
 //!
