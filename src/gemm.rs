@@ -449,19 +449,13 @@ pub fn gemm_ex<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: ArrayVie
     if m == 0 || n == 0 {
         return;
     }
-    let init = if let Some(bias) = epi.bias {
-        Init::Bias(bias.as_ptr())
-    } else if beta == F::zero() {
-        Init::Zero
-    } else {
-        if beta != F::one() {
-            c.mapv_inplace(|v| beta * v);
-        }
-        Init::Load
+    let init = match epi.bias {
+        Some(bias) => Init::Bias(bias.as_ptr()),
+        None if scale_by_beta(beta, &mut c) => Init::Load,
+        None => Init::Zero,
     };
-    let (sa, sb, sc) = (a.strides(), b.strides(), c.strides().to_vec());
-    let a = Strided { ptr: a.as_ptr(), rows: m, cols: k, rs: sa[0], cs: sa[1], scale: alpha };
-    let b = Strided { ptr: b.as_ptr(), rows: k, cols: n, rs: sb[0], cs: sb[1], scale: F::one() };
+    let sc = c.strides().to_vec();
+    let (a, b) = (Strided::view(a, alpha), Strided::view(b, F::one()));
     // SAFETY: the views own valid memory of the checked shapes; C is a unique mutable view, so it
     // aliases neither A nor B; the bias has m values.
     unsafe { run(plan, m, n, k, SourceA::Strided(&a), &b, c.as_mut_ptr(), sc[0], sc[1], init, epi.relu) };
@@ -479,14 +473,19 @@ pub fn gemm_par_with<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: Ar
     let (m, k) = a.dim();
     assert!(b.nrows() == k && c.dim() == (m, b.ncols()), "gemm: inner dims {k} vs {}, C {:?} vs ({m},{})", b.nrows(),
             c.dim(), b.ncols());
-    // C = beta·C (beta is 0 or C is read from its first K block on)
-    let load = beta != F::zero();
-    if load && beta != F::one() {
-        c.mapv_inplace(|v| beta * v);
-    }
+    let load = scale_by_beta(beta, &mut c);
     let sc = c.strides().to_vec();
     // SAFETY: the views own valid memory of the checked shapes; C is a unique mutable view.
     unsafe { run_par(plan, alpha, a, b, load, c.as_mut_ptr(), sc[0], sc[1]) }
+}
+
+/// C = beta·C before a product adds to it: whether C is read at all (beta is not 0); C itself is
+/// scaled only for a beta other than 0 and 1.
+fn scale_by_beta<F: Float>(beta: F, c: &mut ArrayViewMut2<F>) -> bool {
+    if beta != F::zero() && beta != F::one() {
+        c.mapv_inplace(|v| beta * v);
+    }
+    beta != F::zero()
 }
 
 /// A·B into a new array on every thread of the pool (C is written, never zeroed first): the
@@ -517,11 +516,7 @@ unsafe fn run_par<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: Array
     let init = || if load { Init::Load } else { Init::Zero };
     let ((m, k), n) = (a.dim(), b.ncols());
     let threads = rayon::current_num_threads();
-    let strided = |v: &ArrayView2<F>, scale: F| {
-        let s = v.strides();
-        Strided { ptr: v.as_ptr(), rows: v.nrows(), cols: v.ncols(), rs: s[0], cs: s[1], scale }
-    };
-    let (sa, sb) = (strided(&a, alpha), strided(&b, F::one()));
+    let (sa, sb) = (Strided::view(a, alpha), Strided::view(b, F::one()));
     let c = SendPtr(c);
     if threads <= 1 || m * n * k < (1 << 20) {
         // SAFETY: forwarded contract.
@@ -530,7 +525,9 @@ unsafe fn run_par<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: Array
     if n >= m {
         let packed = Prepacked::new(plan, &sa);
         let block = n.div_ceil(threads).next_multiple_of(plan.nr);
-        (0..n).step_by(block).collect::<Vec<_>>().into_par_iter().for_each(|j0| {
+        (0..n.div_ceil(block)).into_par_iter().for_each(|t| {
+            // task t: columns j0 = t·block ..
+            let j0 = t * block;
             let cols = block.min(n - j0);
             // B columns j0.. and C columns j0..: b + j0·cs, c + j0·csc
             let bj = Strided { ptr: sb.at(0, j0), cols, ..sb };
@@ -540,7 +537,9 @@ unsafe fn run_par<F: Float>(plan: &Plan<F>, alpha: F, a: ArrayView2<F>, b: Array
         });
     } else {
         let block = m.div_ceil(threads).next_multiple_of(plan.mr);
-        (0..m).step_by(block).collect::<Vec<_>>().into_par_iter().for_each(|i0| {
+        (0..m.div_ceil(block)).into_par_iter().for_each(|t| {
+            // task t: rows i0 = t·block ..
+            let i0 = t * block;
             let rows = block.min(m - i0);
             // A rows i0.. and C rows i0..: a + i0·rs, c + i0·rsc
             let ai = Strided { ptr: sa.at(i0, 0), rows, ..sa };

@@ -51,6 +51,12 @@ pub(crate) struct Strided<E> {
 unsafe impl<E: Sync> Sync for Strided<E> {}
 
 impl<E: Float> Strided<E> {
+    /// A matrix view (any strides) as a GEMM operand, scaled by `scale` when packed.
+    pub(crate) fn view(m: ndarray::ArrayView2<E>, scale: E) -> Self {
+        let st = m.strides();
+        Strided { ptr: m.as_ptr(), rows: m.nrows(), cols: m.ncols(), rs: st[0], cs: st[1], scale }
+    }
+
     /// Address of element (i, j).
     pub(crate) fn at(&self, i: usize, j: usize) -> *const E {
         self.ptr.wrapping_offset(i as isize * self.rs + j as isize * self.cs)

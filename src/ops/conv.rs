@@ -572,9 +572,7 @@ pub fn conv2d_fwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<Arr
 
 /// A standard-layout matrix as a GEMM operand.
 fn strided<F: Float>(m: ArrayView2<F>) -> Strided<F> {
-    let (rows, cols) = m.dim();
-    let st = m.strides();
-    Strided { ptr: m.as_ptr(), rows, cols, rs: st[0], cs: st[1], scale: F::one() }
+    Strided::view(m, F::one())
 }
 
 /// Output pixels per forward task: two tasks per thread over the batch at least, whole NR panels.
