@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 import mipnet
+from mipnet.machine import fma_peak_gflops, machine_header, peak_drift_line
 
 
 def main() -> None:
@@ -27,6 +28,8 @@ def main() -> None:
     a = ap.parse_args()
     (h, w) = a.size
     mipnet.set_num_threads(a.threads)
+    header, peak = machine_header(a.threads)
+    print(header)
     rng = np.random.default_rng(0)
     left = rng.uniform(0, 255, (h, w, 3)).astype(np.float32)
     right = np.roll(left, -4, axis=1)
@@ -39,6 +42,7 @@ def main() -> None:
         seconds, r1 = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF)
         print(f"run {run}: {seconds:.3f} s  faults {r1.ru_minflt - r0.ru_minflt}  user {r1.ru_utime - r0.ru_utime:.2f} s"
               f"  sys {r1.ru_stime - r0.ru_stime:.2f} s  peak {r1.ru_maxrss >> 10} MiB", flush=True)
+    print(peak_drift_line(peak, fma_peak_gflops(a.threads)))
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ import time
 sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
 import mipnet  # noqa: E402
+from mipnet.machine import cpu_name, fma_peak_gflops, machine_header, peak_drift_line  # noqa: E402
 from mipnet.training.validation import validate_model, validate_sgbm, validation_sets  # noqa: E402
 
 
@@ -38,9 +39,11 @@ def main() -> int:
     p.add_argument("--sets", nargs="+", default=["air", "turbid", "low_light"])
     p.add_argument("--out", help="write the table as JSON here")
     args = p.parse_args()
+    header, peak = machine_header(mipnet.get_num_threads())
+    print(header, flush=True)
     model = mipnet.load(args.weights).eval()
     sets = {k: v for k, v in validation_sets(tuple(args.size), args.pairs).items() if k in args.sets}
-    table: dict = {"size": list(args.size), "pairs": args.pairs, "cpu": mipnet._core.cpu_info()["model"],
+    table: dict = {"size": list(args.size), "pairs": args.pairs, "cpu": cpu_name(), "fma_peak_gflops": peak,
                    "threads": mipnet.get_num_threads(), "sgbm": validate_sgbm(sets), "mipnet": {}}
     for spec in args.iters:
         iters = tuple(int(v) for v in spec.split(","))
@@ -59,6 +62,7 @@ def main() -> int:
         print(f"iters {spec}: {cells(row)}  {row['seconds_per_pair']:.2f} s/pair", flush=True)
     if table["sgbm"]:
         print("sgbm: " + cells(table["sgbm"]))
+    print(peak_drift_line(peak, fma_peak_gflops(mipnet.get_num_threads())))
     if args.out:
         with open(args.out, "w") as f:
             json.dump(table, f, indent=1)

@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 import mipnet
+from mipnet.machine import fma_peak_gflops, machine_header, peak_drift_line
 
 
 def main() -> None:
@@ -32,6 +33,8 @@ def main() -> None:
     a = ap.parse_args()
     (h, w), n = a.size, a.batch
     mipnet.set_num_threads(a.threads)
+    header, peak = machine_header(a.threads)
+    print(header)
     rng = np.random.default_rng(0)
     left = rng.uniform(0, 255, (n, 3, h, w)).astype(np.float32)
     right = np.roll(left, -4, axis=3)
@@ -54,6 +57,7 @@ def main() -> None:
               f"  sys {r1.ru_stime - r0.ru_stime:.2f} s  peak {r1.ru_maxrss >> 10} MiB", flush=True)
         if profiling:
             print(prof.table(), prof.scope_table(), sep="\n")
+    print(peak_drift_line(peak, fma_peak_gflops(a.threads)))
 
 
 if __name__ == "__main__":

@@ -37,6 +37,7 @@ import mipnet
 import mipnet.ops as M
 from mipnet import _core
 from mipnet.bench_model import ENGINES
+from mipnet.machine import machine_header
 
 
 #: Pause after each block of runs of one library (longer than OpenMP's spin-wait).
@@ -255,23 +256,6 @@ def _runner(case: BenchCase, inputs: list[np.ndarray], lib: str, torch: Any) -> 
         fn(*tensors).backward(g_lib)
 
     return run
-
-
-def machine_header(threads: int, peak: float | None = None) -> tuple[str, float]:
-    """The lines naming the CPU, mipnet's ISA path and GEMM plan and the FMA peak, and the peak
-    (GFLOP/s on `threads` threads) the GFLOP/s rows are a share of: measured unless `peak` is given."""
-    info = _core.cpu_info()
-    one = _core.fma_peak_gflops(1)
-    many = _core.fma_peak_gflops(threads) if threads > 1 else one
-    used = many if peak is None else peak
-    caches = f"L1d {info['l1d'] >> 10} KiB, L2 {info['l2'] >> 10} KiB ({info['cache_source']})"
-    lines = [
-        f"CPU: {info['model']} ({info['vendor']}); {caches}",
-        f"ISA: {info['isa']} (supported: {', '.join(info['isa_supported'])}); GEMM plan {info['plan']}",
-        f"FMA peak measured: {one:.0f} GFLOP/s on 1 core, {many:.0f} on {threads} threads"
-        + ("" if peak is None else f"; rows use --peak {peak:g}"),
-    ]
-    return "\n".join(lines), used
 
 
 def run_ops(args: argparse.Namespace, torch: Any) -> int:

@@ -24,12 +24,13 @@ from __future__ import annotations
 import json
 import statistics
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 from typing import Callable, Sequence
+
+from .machine import fma_peak_gflops, machine_header, peak_drift_line
 
 REFERENCE_HINT = "run from the repository root (the torch reference lives in tests_py/reference)"
 ENGINES = ("mipnet", "torch", "openvino", "onnxruntime")
@@ -47,60 +48,6 @@ def reference_dir() -> Path | None:
         if (base / "tests_py" / "reference" / "mipnet_torch.py").is_file():
             return base / "tests_py"
     return None
-
-
-def fma_peak_gflops(threads: int) -> float | None:
-    """The measured FMA peak of this machine at ``threads`` threads, where mipnet's core measures it
-    (``_core.fma_peak_gflops``), else None. The one place the header asks for it."""
-    from . import _core
-
-    fn = getattr(_core, "fma_peak_gflops", None)
-    return float(fn(threads)) if fn is not None else None
-
-
-#: Relative change of the FMA peak between a run's start and its end beyond which the table is flagged.
-PEAK_DRIFT = 0.15
-
-
-def machine_header(threads: int, peak: float | None = None) -> str:
-    """CPU model, ISA flags, mipnet's kernel ISA and the FMA peak (``peak``, or measured now)."""
-    model, flags, ids = platform.processor() or "unknown CPU", set(), {}
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name":
-                model = value.strip()
-            elif key.strip() in ("cpu family", "model"):
-                # a VM's brand string can be as bare as "AMD EPYC": family and model tell the generation
-                ids[key.strip()] = value.strip()
-            elif key.strip() == "flags":
-                flags = set(value.split())
-                break
-    except OSError:
-        pass
-    isa = [f for f in ("avx512f", "avx512_bf16", "amx_tile", "avx2", "fma") if f in flags]
-    from . import _core
-
-    kernel_isa = getattr(_core, "simd_isa", lambda: "?")()
-    peak = fma_peak_gflops(threads) if peak is None else peak
-    peak_s = f"{peak:.0f} GFLOP/s" if peak is not None else "not measured (needs _core.fma_peak_gflops)"
-    if ids:
-        model += f" (family {ids.get('cpu family', '?')} model {ids.get('model', '?')})"
-    return (f"CPU: {model}, {os.cpu_count()} logical cores; ISA: {' '.join(isa) or 'baseline x86-64'}; "
-            f"mipnet kernels: {kernel_isa}; FMA peak at {threads} threads: {peak_s}")
-
-
-def peak_drift_line(start: float | None, end: float | None) -> str:
-    """The FMA peak measured again after the table, beside the header's; flagged when they differ by more
-    than ``PEAK_DRIFT`` (a shared VM whose speed changed during the run: rows measured in different
-    phases do not compare, rounds taken in turns still do)."""
-    if start is None or end is None:
-        return "FMA peak at the end: not measured"
-    line = f"FMA peak at the start {start:.0f}, at the end {end:.0f} GFLOP/s"
-    if abs(end - start) > PEAK_DRIFT * max(start, end):
-        line += (f": the machine's speed changed by more than {PEAK_DRIFT:.0%} during the run; compare engines "
-                 "within a row (they take turns), not rows measured at different times")
-    return line
 
 
 # Runs in the child process: builds the engine from one seeded torch init, times `runs` calls after
@@ -261,8 +208,8 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
         return 1
     missing = [e for e in engines if not _installed(e)]
     engines = [e for e in engines if e not in missing]
-    peak_start = fma_peak_gflops(threads)
-    print(machine_header(threads, peak_start))
+    header, peak_start = machine_header(threads)
+    print(header)
     print(f"MIPNet 6+6 iterations (train rows: as given), {threads} threads everywhere, same weights, inputs and "
           f"initial field; peak = max RSS of a fresh process; seconds of one call after {warmup} untimed"
           + (f", median of {rounds} rounds (engines taking turns)" if rounds > 1 else ""))
