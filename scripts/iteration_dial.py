@@ -4,7 +4,8 @@ iteration count, beside the seconds per pair, and SGBM once.
     python scripts/iteration_dial.py WEIGHTS [--size 384 512] [--pairs 16] [--iters 2,2 4,4 6,6 8,8] [--out dial.json]
 
 The sets are those of training validation (``mipnet.training.validation.validation_sets``: pair seeds from
-1,000,000, never trained on); EPE and bad-x are pooled over the valid pixels of all pairs of a set.
+2,000,000, never trained on; the test pairs of ``mipnet eval`` start at 1,000,000); EPE and bad-x are pooled
+over the valid pixels of all pairs of a set.
 Seconds per pair: the wall time of the model's forward passes over the set (2 threads unless
 ``MIPNET_NUM_THREADS`` says otherwise) divided by the pairs.
 """
