@@ -138,3 +138,19 @@ def test_eval_min_confidence_adds_a_covered_mipnet_row(capsys):
 def test_info_and_python_dash_m_entry_point():
     out = subprocess.run([sys.executable, "-m", "mipnet", "info"], capture_output=True, text=True, check=True).stdout
     assert "5,499,136" in out and "update_rls.gru" in out and "threads=" in out
+
+
+def test_info_summarises_the_shipped_weights_and_history_prints_every_command(capsys):
+    from mipnet import pretrained
+
+    meta = pretrained.pretrained_info()
+    assert main(["info"]) == 0
+    short = capsys.readouterr().out
+    assert f"  step: {meta['step']}" in short
+    assert "validation (EPE px / bad-3 %):" in short
+    air = meta["validation"]["air"]
+    assert any(line.split() == ["air", f"{air['epe']:.3f}", "/", f"{air['bad3']:.1f}"] for line in short.splitlines())
+    assert main(["info", "--history"]) == 0
+    full = capsys.readouterr().out
+    assert all(f"    {command}" in full for command in meta["commands"])
+    assert meta["trained"] in full and len(full) > len(short)

@@ -46,24 +46,45 @@ def load_model(weights: str | None, quiet: bool = False):
     return mipnet.MIPNet().eval()
 
 
-def describe_weights(weights: str | None) -> list[str]:
-    """Lines saying what a weights file (default: the shipped one) was trained on."""
+def describe_weights(weights: str | None, history: bool = False) -> list[str]:
+    """Lines saying what a weights file (default: the shipped one) was trained on: how it was made and its last
+    run's recipe, its steps and validation table; ``history``: every run of its lineage and every command."""
     from . import pretrained
     from .weights import load_safetensors
 
     if weights:
-        _, meta = load_safetensors(weights)
-        label = weights
+        meta, label = pretrained.decode_metadata(load_safetensors(weights)[1]), weights
     elif pretrained.available():
         meta, label = pretrained.pretrained_info(), f"shipped ({pretrained.PRETRAINED_PATH.name})"
     else:
         return ["weights: none shipped (untrained network)"]
     lines = [f"weights: {label}"]
-    for key in ("trained", "step", "generator_version", "mipnet_version", "commands"):
-        if key in meta:
-            lines.append(f"  {key}: {meta[key]}")
-    if "validation" in meta:
-        lines.append(f"  validation: {meta['validation']}")
+    trained, commands, validation = meta.get("trained"), meta.get("commands"), meta.get("validation")
+    # A mean of weights describes each file it averages after "; the last: ", and each run after "; then ":
+    # the first clause says how this file was made, the last "then" clause is the newest run's recipe.
+    nested = isinstance(trained, str) and "; the last: " in trained
+    if nested and not history:
+        last_run = trained.rsplit("; then ", 1)[-1]
+        lines.append(f"  trained: {trained.partition('; the last: ')[0]}; the newest run: {last_run}")
+    elif trained is not None:
+        lines.append(f"  trained: {trained}")
+    lines += [f"  {key}: {meta[key]}" for key in ("step", "generator_version", "mipnet_version") if key in meta]
+    if isinstance(commands, list) and commands and not history:
+        lines.append(f"  commands: {len(commands)}, the last: {commands[-1]}")
+    elif isinstance(commands, list):
+        lines += ["  commands:"] + [f"    {command}" for command in commands]
+    elif commands is not None:
+        lines.append(f"  commands: {commands}")
+    rows = {name: row for name, row in validation.items() if isinstance(row, dict) and {"epe", "bad3"} <= set(row)} \
+        if isinstance(validation, dict) else {}
+    if rows:
+        width = max(map(len, rows))
+        lines.append("  validation (EPE px / bad-3 %):")
+        lines += [f"    {name:<{width}}  {row['epe']:.3f} / {row['bad3']:.1f}" for name, row in rows.items()]
+    elif validation is not None:
+        lines.append(f"  validation: {validation}")
+    if not history and (nested or (isinstance(commands, list) and len(commands) > 1)):
+        lines.append("  (mipnet info --history: every run of the lineage and every command)")
     return lines
 
 
@@ -232,7 +253,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         raise ArgumentError("--measure needs --size H W")
     model = load_model(args.weights, quiet=True)
     print(f"mipnet {mipnet.__version__}  threads={mipnet.get_num_threads()}  dtype={model.dtype}")
-    print("\n".join(describe_weights(args.weights)))
+    print("\n".join(describe_weights(args.weights, args.history)))
     print("config: " + ", ".join(f"{k}={v}" for k, v in vars(model.config).items()))
     counts: dict[str, int] = {}
     for name, p in model.named_parameters():
@@ -441,6 +462,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     info = sub.add_parser("info", help="config, parameter counts per module, thread count, memory estimates")
     info.add_argument("--weights", help="weights file to describe")
+    info.add_argument("--history", action="store_true",
+                      help="print every training run of the weights' lineage and every command, not only the newest")
     info.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), action=ImageSize,
                       help="also print the peak memory of an eval forward and a training step at this image size")
     info.add_argument("--batch", type=positive_int, default=1, help="image pairs per pass for --size (default 1)")

@@ -19,7 +19,7 @@ from .weights import load_safetensors, save_safetensors
 
 PRETRAINED_PATH = Path(__file__).resolve().parent / "assets" / "mipnet_pretrained.safetensors"
 
-__all__ = ["PRETRAINED_PATH", "available", "load_pretrained", "pretrained_info", "export_pretrained"]
+__all__ = ["PRETRAINED_PATH", "available", "load_pretrained", "pretrained_info", "decode_metadata", "export_pretrained"]
 
 
 def available() -> bool:
@@ -40,7 +40,11 @@ def pretrained_info() -> dict:
     """The shipped file's metadata, JSON values decoded (empty without shipped weights)."""
     if not available():
         return {}
-    _, meta = load_safetensors(PRETRAINED_PATH)
+    return decode_metadata(load_safetensors(PRETRAINED_PATH)[1])
+
+
+def decode_metadata(meta: dict) -> dict:
+    """A safetensors header's metadata (strings) with the JSON-encoded values decoded."""
     out = {}
     for key, value in meta.items():
         try:
