@@ -75,8 +75,9 @@ def describe_weights(weights: str | None, history: bool = False) -> list[str]:
         lines += ["  commands:"] + [f"    {command}" for command in commands]
     elif commands is not None:
         lines.append(f"  commands: {commands}")
-    rows = {name: row for name, row in validation.items() if isinstance(row, dict) and {"epe", "bad3"} <= set(row)} \
-        if isinstance(validation, dict) else {}
+    rows = {}
+    if isinstance(validation, dict):
+        rows = {name: row for name, row in validation.items() if isinstance(row, dict) and {"epe", "bad3"} <= set(row)}
     if rows:
         width = max(map(len, rows))
         lines.append("  validation (EPE px / bad-3 %):")

@@ -570,11 +570,6 @@ pub fn conv2d_fwd_ex<F: Float>(x: ArrayViewD<F>, w: ArrayViewD<F>, b: Option<Arr
     forward(run, &ops.g, ops.x()?, ops.wmat()?, bias.as_deref(), relu)
 }
 
-/// A standard-layout matrix as a GEMM operand.
-fn strided<F: Float>(m: ArrayView2<F>) -> Strided<F> {
-    Strided::view(m, F::one())
-}
-
 /// Output pixels per forward task: two tasks per thread over the batch at least, whole NR panels.
 /// (Every output element is the same chain whatever the tiles, so they may follow the threads.)
 fn forward_tile<F>(g: &Geom, plan: &Plan<F>) -> usize {
@@ -594,7 +589,7 @@ fn forward<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], wm: ArrayView2<F>, b
     if tap_major::applies(g) {
         return tap_major::forward(run, g, xs, wm, bias, relu);
     }
-    let wpack = Prepacked::new(plan, &strided(wm));
+    let wpack = Prepacked::new(plan, &Strided::view(wm, F::one()));
     let tile = forward_tile(g, plan);
     // every element is written by its task's GEMM (Init::Zero or Init::Bias starts each chain), so y
     // is not zeroed first
@@ -813,7 +808,7 @@ fn weight_grad<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], dy: &[F]) -> Res
                 let beta = if t == 0 { F::zero() } else { F::one() };
                 if nhwc {
                     // dW'[:, t·Cin + c] (+)= dY[n][:, range] · colsᵀ (tap-major K)
-                    let a = strided(dyt);
+                    let a = Strided::view(dyt, F::one());
                     let b = NhwcColsT { g, xt: &xt[n * g.img()..(n + 1) * g.img()], px0: px.start };
                     let init = if t == 0 { Init::Zero } else { Init::Load };
                     let (rsc, c) = (part.strides()[0], part.as_mut_ptr());
