@@ -1,4 +1,4 @@
-"""Average several weights files of one network into one (`mipnet.weights.average_safetensors`: a "model soup";
+"""Average several weights files of one network into one (`mipnet.serialization.average_safetensors`: a "model soup";
 SWA over the ends of the campaign's one-cycle runs), to validate the mean before `scripts/ship_weights.py --average`
 ships it.
 
@@ -18,7 +18,7 @@ import sys
 # an installed mipnet comes first; the checkout's own python/ is the fallback
 sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
-from mipnet.weights import average_safetensors, load_safetensors, save_safetensors  # noqa: E402
+from mipnet.serialization import average_safetensors, load_safetensors, save_safetensors  # noqa: E402
 
 
 def main() -> int:

@@ -26,7 +26,7 @@ sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "
 
 import mipnet  # noqa: E402
 from mipnet.data.synthetic import VALIDATION_SEED_START, apply_water, make_pair, water_for_item  # noqa: E402
-from mipnet.filters import box_sum  # noqa: E402
+from mipnet.stereo.filters import box_sum  # noqa: E402
 from mipnet.underwater import degrade  # noqa: E402
 
 
@@ -104,7 +104,7 @@ def far_half(pair: dict) -> np.ndarray:
 def figure(model, size, iters, threshold: float, path: str) -> None:
     """Rows: the pair as rendered, then with its far half as open water; panels: left, disparity, confidence,
     disparity where confidence >= threshold (black elsewhere), one colour scale."""
-    from mipnet import io, viz
+    from mipnet.stereo import io, viz
 
     seed = VALIDATION_SEED_START
     pair = make_pair(*size, seed)

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 import mipnet
-from mipnet.machine import fma_peak_gflops, machine_header, peak_drift_line
+from mipnet.bench.machine import fma_peak_gflops, machine_header, peak_drift_line
 
 
 def main() -> None:

@@ -22,7 +22,7 @@ import time
 sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
 import mipnet  # noqa: E402
-from mipnet.machine import cpu_name, fma_peak_gflops, machine_header, peak_drift_line  # noqa: E402
+from mipnet.bench.machine import cpu_name, fma_peak_gflops, machine_header, peak_drift_line  # noqa: E402
 from mipnet.training.validation import validate_model, validate_sgbm, validation_sets  # noqa: E402
 
 

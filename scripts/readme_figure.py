@@ -15,10 +15,10 @@ import numpy as np
 sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
 import mipnet  # noqa: E402
-from mipnet import io, viz  # noqa: E402
-from mipnet.baselines import sgbm  # noqa: E402
+from mipnet.stereo import io, viz  # noqa: E402
+from mipnet.stereo.baselines import sgbm  # noqa: E402
 from mipnet.cli import EXAMPLE_LEFT, EXAMPLE_RIGHT  # noqa: E402
-from mipnet.metrics import evaluate  # noqa: E402
+from mipnet.stereo.metrics import evaluate  # noqa: E402
 
 
 def main(out: str) -> int:

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 import mipnet
-from mipnet.machine import fma_peak_gflops, machine_header, peak_drift_line
+from mipnet.bench.machine import fma_peak_gflops, machine_header, peak_drift_line
 
 
 def main() -> None:
@@ -49,7 +49,7 @@ def main() -> None:
         r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
         with mipnet.profiler.profile() if profiling else contextlib.nullcontext() as prof:
             opt.zero_grad()
-            loss = mipnet.losses.sequence_loss(model(left, right, iters=tuple(a.iters), disp_init=d0), gt, gt > 0)
+            loss = mipnet.model.losses.sequence_loss(model(left, right, iters=tuple(a.iters), disp_init=d0), gt, gt > 0)
             loss.backward()
             opt.step()
         seconds, r1 = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF)

@@ -17,8 +17,8 @@ def test_torch_import_paths():
 
 def test_public_modules_export_only_their_api():
     for name in ("mipnet.optim", "mipnet.optim.lr_scheduler", "mipnet.nn", "mipnet.nn.utils", "mipnet.utils.data",
-                 "mipnet.training", "mipnet.data", "mipnet.autograd", "mipnet.blocks", "mipnet.losses", "mipnet.model",
-                 "mipnet.random", "mipnet.tensor", "mipnet.weights", "mipnet.profiler", "mipnet.memory", "mipnet.pretrained"):
+                 "mipnet.training", "mipnet.data", "mipnet.autograd", "mipnet.model.blocks", "mipnet.model.losses", "mipnet.model",
+                 "mipnet.random", "mipnet.tensor", "mipnet.serialization", "mipnet.profiler", "mipnet.model.memory", "mipnet.model.pretrained"):
         module = importlib.import_module(name)
         assert "np" not in module.__all__ and "math" not in module.__all__, name
         for symbol in module.__all__:

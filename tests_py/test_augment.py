@@ -10,7 +10,7 @@ from helpers import require, sample_right
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mipnet.data import make_pair
-from mipnet.data.loader import DataLoader
+from mipnet.utils.data.dataloader import DataLoader
 from mipnet.errors import ArgumentError, DTypeError, ShapeError
 from mipnet.training.augment import (
     AugmentParams,

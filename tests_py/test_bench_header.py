@@ -1,8 +1,8 @@
-"""The machine lines printed beside every speed figure (``mipnet.machine``): the CPU, the FMA peak and the drift
+"""The machine lines printed beside every speed figure (``mipnet.bench.machine``): the CPU, the FMA peak and the drift
 check after a run."""
 
 from mipnet import _core
-from mipnet.machine import PEAK_DRIFT, cpu_name, machine_header, peak_drift_line
+from mipnet.bench.machine import PEAK_DRIFT, cpu_name, machine_header, peak_drift_line
 
 
 def test_header_names_the_cpu_and_the_peak_it_is_given():

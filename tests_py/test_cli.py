@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import mipnet
-from mipnet import io
+from mipnet.stereo import io
 from mipnet.cli import main
 from mipnet.data.synthetic import make_pair
 from helpers import require
@@ -46,7 +46,7 @@ def test_infer_globs_write_every_output_with_calibration(pairs_dir, tmp_path, ca
 def test_infer_without_images_runs_the_shipped_weights_on_the_bundled_example(tmp_path, capsys):
     assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1"]) == 0
     disp = np.load(tmp_path / "example_left_disp.npy")
-    from mipnet.cli import EXAMPLE_LEFT, EXAMPLE_RIGHT
+    from mipnet.cli.app import EXAMPLE_LEFT, EXAMPLE_RIGHT
 
     expected = mipnet.MIPNet.pretrained()(io.read_image(EXAMPLE_LEFT), io.read_image(EXAMPLE_RIGHT), iters=(1, 1))
     np.testing.assert_array_equal(disp, expected)
@@ -54,7 +54,7 @@ def test_infer_without_images_runs_the_shipped_weights_on_the_bundled_example(tm
 
 
 def test_infer_scale_writes_a_full_size_disparity_in_input_pixels(tmp_path):
-    from mipnet.cli import EXAMPLE_LEFT, EXAMPLE_RIGHT
+    from mipnet.cli.app import EXAMPLE_LEFT, EXAMPLE_RIGHT
 
     assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1", "--scale", "0.5"]) == 0
     disp = np.load(tmp_path / "example_left_disp.npy")
@@ -92,15 +92,15 @@ def test_infer_confidence_alone_writes_the_map_and_keeps_every_pixel(pairs_dir, 
 
 
 def test_an_installation_without_weights_says_it_runs_untrained(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(mipnet.pretrained, "PRETRAINED_PATH", tmp_path / "absent.safetensors")
+    monkeypatch.setattr(mipnet.model.pretrained, "PRETRAINED_PATH", tmp_path / "absent.safetensors")
     assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1"]) == 0
     assert "UNTRAINED" in capsys.readouterr().err
 
 
 def test_shipped_weights_are_float16_with_their_provenance():
-    from mipnet.weights import load_safetensors
+    from mipnet.serialization import load_safetensors
 
-    tensors, meta = load_safetensors(mipnet.pretrained.PRETRAINED_PATH)
+    tensors, meta = load_safetensors(mipnet.model.pretrained.PRETRAINED_PATH)
     assert {a.dtype for a in tensors.values() if a.dtype.kind == "f"} == {np.dtype(np.float16)}
     assert int(meta["step"]) > 0 and "generated scenes" in meta["trained"] and "validation" in meta
     model = mipnet.MIPNet.pretrained()
@@ -141,7 +141,7 @@ def test_info_and_python_dash_m_entry_point():
 
 
 def test_info_summarises_the_shipped_weights_and_history_prints_every_command(capsys):
-    from mipnet import pretrained
+    from mipnet.model import pretrained
 
     meta = pretrained.pretrained_info()
     assert main(["info"]) == 0

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from mipnet import io
+from mipnet.stereo import io
 from mipnet.cli import main
 from mipnet.data.synthetic import make_pair
 from helpers import require
@@ -170,7 +170,7 @@ def test_eval_skips_an_unreadable_pair_and_scores_the_others(files, capsys):
 def test_a_subcommand_added_later_gets_the_same_error_handling(files, capsys, monkeypatch):
     """The handling lives in main(), so a subcommand registered in build_parser (as `train` will be)
     has --debug, the one-line errors and status 2 without code of its own."""
-    import mipnet.cli as cli
+    import mipnet.cli.app as cli
 
     build = cli.build_parser
 

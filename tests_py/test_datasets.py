@@ -21,7 +21,7 @@ from mipnet.data import (
     default_collate,
 )
 from mipnet.errors import FormatError, ShapeError
-from mipnet.io import (
+from mipnet.stereo.io import (
     write_crestereo_disparity,
     write_image,
     write_kitti_disparity,

@@ -50,7 +50,7 @@ def _train_step(weights, batch):
     left, right, disparity = batch
     model = _model(weights).train()
     mipnet.manual_seed(11)
-    loss = mipnet.losses.sequence_loss(model(left, right), disparity, disparity > 0)
+    loss = mipnet.model.losses.sequence_loss(model(left, right), disparity, disparity > 0)
     loss.backward()
     return loss.numpy().copy(), {name: p.grad.numpy().copy() for name, p in model.named_parameters()}
 

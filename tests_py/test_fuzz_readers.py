@@ -24,9 +24,9 @@ from hypothesis import given, strategies as st  # noqa: E402
 from hypothesis.extra import numpy as hnp  # noqa: E402
 
 import mipnet  # noqa: E402
-from mipnet import io  # noqa: E402
+from mipnet.stereo import io  # noqa: E402
 from mipnet.errors import FormatError  # noqa: E402
-from mipnet.weights import load_safetensors, save_safetensors  # noqa: E402
+from mipnet.serialization import load_safetensors, save_safetensors  # noqa: E402
 from fuzzing import (NASTY_FLOATS, NASTY_INTS, allocation_peak, as_file, assert_reads_or_raises,  # noqa: E402
                      fuzz_settings, le_u64, mutations, written_bytes)
 

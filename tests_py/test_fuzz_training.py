@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from mipnet.errors import ArgumentError, FormatError
 from mipnet.training.checkpoint import TrainState, _flatten, read_checkpoint
 from mipnet.training.config import TrainConfig, load_config_file
-from mipnet.weights import save_safetensors
+from mipnet.serialization import save_safetensors
 
 CONFIG_SEEDS = [
     b'preset = "cpu"\nsteps = 300\ncrop = [128, 256]\niters = [3, 3]\nlr = 4e-4\ndata = ["scenes:0.7", "synthetic:0.3"]\n',

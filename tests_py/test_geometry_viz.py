@@ -1,11 +1,11 @@
-"""mipnet.geometry (disparity -> depth -> points) and mipnet.viz (colour maps)."""
+"""mipnet.stereo.geometry (disparity -> depth -> points) and mipnet.stereo.viz (colour maps)."""
 
 import numpy as np
 import pytest
 from helpers import require
-from mipnet.geometry import baseline_in_metres, depth_to_points, disparity_to_depth
-from mipnet.io import read_calib, write_ply
-from mipnet.viz import COLORMAPS, colorize, colormap_lut
+from mipnet.stereo.geometry import baseline_in_metres, depth_to_points, disparity_to_depth
+from mipnet.stereo.io import read_calib, write_ply
+from mipnet.stereo.viz import COLORMAPS, colorize, colormap_lut
 
 MIDDLEBURY = {"fx": 1000.0, "fy": 1000.0, "cx": 1.0, "cy": 0.5, "doffs": 10.0, "baseline": 100.0,
               "baseline_unit": "mm"}

@@ -53,7 +53,7 @@ def test_gru_step_matches_torch_conv_gru():
     from reference.mipnet_torch import ConvGRU as TorchGRU
     torch.manual_seed(0)
     ref = TorchGRU(4, 6)
-    ours = mipnet.blocks.ConvGRU(4, 6)
+    ours = mipnet.model.blocks.ConvGRU(4, 6)
     ours.load_state_dict({k: v.detach().numpy() for k, v in ref.state_dict().items()})
     h, x = rand((2, 4, 5, 6)), rand((2, 6, 5, 6), seed=1)
     want = ref(torch.tensor(h), torch.tensor(x)).detach().numpy()

@@ -1,4 +1,4 @@
-"""mipnet.io: every writer round-trips through its reader; bad files raise FormatError naming the
+"""mipnet.stereo.io: every writer round-trips through its reader; bad files raise FormatError naming the
 file; writers are atomic."""
 
 import os
@@ -6,9 +6,9 @@ import struct
 
 import numpy as np
 import pytest
-from mipnet import _fileutil
+from mipnet.utils import files as _fileutil
 from mipnet.errors import FormatError, MipnetError
-from mipnet.io import (
+from mipnet.stereo.io import (
     read_calib,
     read_crestereo_disparity,
     read_image,

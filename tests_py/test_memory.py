@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import mipnet
-from mipnet import memory
+from mipnet.model import memory
 from mipnet.autograd import _Node, _topological_order
 from mipnet.cli import main
 from mipnet.errors import MemoryLimitError, MipnetError
@@ -30,7 +30,7 @@ def _graph_saved_bytes(model, n, h, w, iters) -> int:
     left, right = _pair(n, h, w)
     gt = np.full((n, 1, h, w), 3.0, np.float32)
     mipnet.manual_seed(0)
-    loss = mipnet.losses.sequence_loss(model.train()(left, right, iters=iters), gt, gt > 0)
+    loss = mipnet.model.losses.sequence_loss(model.train()(left, right, iters=iters), gt, gt > 0)
 
     def buffer(a):
         while isinstance(a.base, np.ndarray):
@@ -66,7 +66,7 @@ def test_the_training_count_is_what_the_graph_saves(config, heads, monkeypatch):
 
 @pytest.mark.parametrize("mode, h, w, n", [("eval", 128, 160, 1), ("eval", 384, 512, 1), ("train", 64, 96, 2)])
 def test_the_estimate_matches_the_peak_of_a_fresh_process(mode, h, w, n):
-    predicted = memory.estimate(h, w, n, mode).total
+    predicted = memory.estimate(h, w, n, mode, (6, 6), mipnet.MIPNet()).total
     measured = memory.measure_peak(h, w, n, mode)
     assert abs(predicted / measured - 1) < TOLERANCE, (
         f"{mode} {h}x{w} batch {n}: estimate {predicted / 2**20:.0f} MiB, measured {measured / 2**20:.0f} MiB")
@@ -119,7 +119,7 @@ def test_info_size_prints_the_estimates(capsys):
 
 _POLICY_SCRIPT = """
 import numpy as np, mipnet
-from mipnet import _allocator
+from mipnet.utils import allocator as _allocator
 model = mipnet.MIPNet().eval()
 with mipnet.no_grad():
     model(np.zeros((1, 3, 32, 64), np.float32), np.zeros((1, 3, 32, 64), np.float32), iters=(1, 1))

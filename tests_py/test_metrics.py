@@ -1,12 +1,12 @@
-"""mipnet.metrics on hand-computed cases, and mipnet.evaluation's loop and tables."""
+"""mipnet.stereo.metrics on hand-computed cases, and mipnet.stereo.evaluation's loop and tables."""
 
 import math
 
 import numpy as np
 import pytest
 from mipnet.errors import ShapeError
-from mipnet.evaluation import evaluate_method, format_table, mipnet_rows, result_row
-from mipnet.metrics import METRIC_KEYS, MetricAccumulator, aggregate, evaluate
+from mipnet.stereo.evaluation import evaluate_method, format_table, mipnet_rows, result_row
+from mipnet.stereo.metrics import METRIC_KEYS, MetricAccumulator, aggregate, evaluate
 
 
 def test_evaluate_hand_computed():

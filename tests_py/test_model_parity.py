@@ -84,7 +84,7 @@ def _train_step_both(dtype, freeze_bn, n=2, h=64, w=96):
     t_loss = sequence_loss_torch(t_preds, torch.tensor(gt, dtype=tdt), torch.tensor(valid))
     t_loss.backward()
     m_preds = ours(left.astype(dtype), right.astype(dtype), iters=(6, 6), disp_init=d0)
-    m_loss = mipnet.losses.sequence_loss(m_preds, gt.astype(dtype), valid)
+    m_loss = mipnet.model.losses.sequence_loss(m_preds, gt.astype(dtype), valid)
     m_loss.backward()
     return ref, ours, t_preds, m_preds, t_loss, m_loss
 
@@ -103,10 +103,10 @@ def _zero_grad_bias(name):
 
 @pytest.mark.parametrize("heads", ["kept", "recomputed"])
 def test_training_step_matches_reference_float64(heads, monkeypatch):
-    """Both ways training treats the prediction heads (mipnet.memory.recompute_heads): kept at this
+    """Both ways training treats the prediction heads (mipnet.model.memory.recompute_heads): kept at this
     size, and recomputed in the backward as at large sizes."""
     if heads == "recomputed":
-        monkeypatch.setattr(mipnet.memory, "HEAD_KEEP_BYTES", 0)
+        monkeypatch.setattr(mipnet.model.memory, "HEAD_KEEP_BYTES", 0)
     ref, ours, t_preds, m_preds, t_loss, m_loss = _train_step_both(np.float64, freeze_bn=False)
     assert len(m_preds) == len(t_preds) == 24
     worst_pred = max(np.abs(a.numpy() - b.detach().numpy()).max() for a, b in zip(m_preds, t_preds))

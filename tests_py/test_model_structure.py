@@ -79,7 +79,7 @@ def test_save_and_load_round_trip_config_and_weights(tmp_path):
 
 def test_safetensors_files_match_the_reference_library(tmp_path):
     st = require("safetensors.numpy")
-    from mipnet.weights import load_safetensors, save_safetensors
+    from mipnet.serialization import load_safetensors, save_safetensors
 
     arrays = {"a": np.arange(6, dtype=np.float32).reshape(2, 3), "n": np.array(7, np.int64)}
     save_safetensors(tmp_path / "ours.st", arrays, {"k": "v"})
@@ -92,7 +92,7 @@ def test_safetensors_files_match_the_reference_library(tmp_path):
 
 
 def test_average_of_weights_files_is_their_weighted_mean(tmp_path):
-    from mipnet.weights import average_safetensors, save_safetensors
+    from mipnet.serialization import average_safetensors, save_safetensors
 
     rng = np.random.default_rng(0)
     files = []
@@ -100,7 +100,7 @@ def test_average_of_weights_files_is_their_weighted_mean(tmp_path):
         files.append(tmp_path / f"w{k}.safetensors")
         save_safetensors(files[-1], {"w": rng.standard_normal((4, 3)).astype(np.float16 if k == 0 else np.float32),
                                      "count": np.array([k], np.int64)})
-    tensors = [mipnet.weights.load_safetensors(f)[0] for f in files]
+    tensors = [mipnet.serialization.load_safetensors(f)[0] for f in files]
     mean = average_safetensors(files, [1.0, 2.0, 1.0])
     expected = (tensors[0]["w"].astype(np.float64) + 2 * tensors[1]["w"] + tensors[2]["w"]) / 4
     assert mean["w"].dtype == np.float32 and np.allclose(mean["w"], expected, rtol=1e-6, atol=1e-7)

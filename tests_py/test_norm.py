@@ -151,7 +151,7 @@ def test_norm_errors_name_op_and_shapes():
 def test_eval_batch_norm_folded_into_conv_matches_both_layers_with_grads(bias):
     """Eval-mode MS-CAM branches fold each BatchNorm into its convolution (BatchNorm2d.folded): output and
     gradients (input, conv weight and bias, BN weight and bias) equal the two layers applied in turn."""
-    from mipnet.blocks import MSCAMBranch
+    from mipnet.model.blocks import MSCAMBranch
     from mipnet.nn import BatchNorm2d, Conv2d
 
     rng = np.random.default_rng(3)

@@ -32,22 +32,15 @@ from reference import (  # noqa: E402
 
 torch.set_num_threads(2)
 
-SPEC_PATH = Path(__file__).resolve().parents[1].parent / "shared/spec/mipnet-architecture.md"
+KEY_TABLE = Path(__file__).resolve().parent / "reference" / "state_dict_keys.txt"
 H, W = 64, 96
 BUFFER_SUFFIXES = ("running_mean", "running_var", "num_batches_tracked")
 
 
-def spec_key_table():
-    """(key, shape) rows of the spec's f.2 table, in order."""
-    if not SPEC_PATH.exists():
-        if os.environ.get("CI"):
-            pytest.fail(f"spec not found at {SPEC_PATH}")
-        pytest.skip(f"spec not found at {SPEC_PATH}")
-    text = SPEC_PATH.read_text(encoding="utf-8")
-    section = text.split("### f.2", 1)[1].split("### f.3", 1)[0]
-    block = section.split("```", 2)[1]
+def canonical_key_table():
+    """(key, shape) rows of the canonical key table (reference/state_dict_keys.txt), in order."""
     rows = []
-    for line in block.splitlines():
+    for line in KEY_TABLE.read_text(encoding="utf-8").splitlines():
         match = re.fullmatch(r"\s*(\S+)\s+\[([0-9, ]*)\]\s*", line)
         if match:
             dims = [int(d) for d in match.group(2).replace(" ", "").split(",") if d]
@@ -78,13 +71,13 @@ def seeded_model(seed=0, **kwargs):
 
 
 def test_spec_table_parsed_completely():
-    rows = spec_key_table()
+    rows = canonical_key_table()
     assert len(rows) == 428
     assert sum(1 for k, _ in rows if not k.endswith(BUFFER_SUFFIXES)) == 284
 
 
 def test_state_dict_matches_spec_table_exactly():
-    assert state_rows(MIPNetTorch()) == spec_key_table()
+    assert state_rows(MIPNetTorch()) == canonical_key_table()
 
 
 @pytest.mark.parametrize(
@@ -104,7 +97,7 @@ def test_ablation_keys_and_parameter_counts(kwargs, n_keys, n_params):
     assert [k for k, _ in model.named_parameters()] == [
         k for k, _ in rows if not k.endswith(BUFFER_SUFFIXES)
     ]
-    full = spec_key_table()
+    full = canonical_key_table()
     # f.3: every ablation keeps a subsequence of f.2 (names, order, shapes).
     it = iter(full)
     assert all(row in it for row in rows)

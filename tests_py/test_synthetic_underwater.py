@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from helpers import require, sample_right
 from mipnet.data import SyntheticStereo, make_pair, synthetic_underwater_pairs
-from mipnet.metrics import evaluate
+from mipnet.stereo.metrics import evaluate
 from mipnet.underwater import (
     PRESETS,
     WaterParams,
@@ -216,7 +216,7 @@ def test_srgb_round_trip():
 @pytest.mark.parametrize("preset", ["turbid", "low_light"])
 def test_sgbm_on_degraded_pairs_gives_finite_epe(pair, preset):
     require_cv2()
-    from mipnet.baselines import sgbm
+    from mipnet.stereo.baselines import sgbm
 
     left, right = degrade(pair["left"], pair["right"], pair["disparity"], preset, seed=0)
     disparity, valid = sgbm(left, right)
@@ -228,7 +228,7 @@ def test_sgbm_on_degraded_pairs_gives_finite_epe(pair, preset):
 
 def test_sgbm_on_clean_pair_is_accurate(pair):
     require_cv2()
-    from mipnet.baselines import default_num_disparities, sgbm
+    from mipnet.stereo.baselines import default_num_disparities, sgbm
 
     assert default_num_disparities(128) == 32 and default_num_disparities(10) == 16
     disparity, valid = sgbm(pair["left"], pair["right"])
@@ -238,7 +238,7 @@ def test_sgbm_on_clean_pair_is_accurate(pair):
 
 def test_sgbm_rows_and_table():
     require_cv2()
-    from mipnet.evaluation import format_table, sgbm_rows
+    from mipnet.stereo.evaluation import format_table, sgbm_rows
 
     rows = sgbm_rows(synthetic_underwater_pairs(2, 64, 96, "turbid", seed=0))
     assert [r["method"] for r in rows] == ["SGBM (full coverage)", "SGBM (covered)"]

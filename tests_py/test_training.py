@@ -18,7 +18,7 @@ import mipnet.cli
 from mipnet.errors import ArgumentError, FormatError
 from mipnet.training import fit, resolve_config
 from mipnet.training.checkpoint import list_checkpoints, load_latest_checkpoint
-from mipnet.training.data_spec import Mixture, parse_spec
+from mipnet.data.registry import Mixture, parse_spec
 from mipnet.training.log import TrainLog
 
 TINY = ["--crop", "64", "96", "--batch-size", "2", "--iters", "1", "1", "--val-every", "0", "--workers", "0",
@@ -289,7 +289,7 @@ def test_shipped_weights_carry_the_history_of_their_init(tmp_path):
     fit(_tiny_config(steps=1, init=shipped_first), second, progress=False)
     shipped_second = str(tmp_path / "second.safetensors")
     subprocess.run([sys.executable, ship, second, "--weights", "model.safetensors", "--out", shipped_second], check=True)
-    from mipnet.weights import load_safetensors
+    from mipnet.serialization import load_safetensors
     tensors_first, meta_first = load_safetensors(shipped_first)
     tensors, meta = load_safetensors(shipped_second)
     assert meta_first["step"] == "2" and meta_first["trained"].startswith("2 steps from scratch")

@@ -3,22 +3,32 @@
 Quick start::
 
     import mipnet
-    model = mipnet.MIPNet().eval()
+    model = mipnet.MIPNet.pretrained()
     disparity = model(left_rgb_uint8, right_rgb_uint8)      # (H, W) float32, positive
+
+The package has two layers (docs/architecture.md §5; enforced by import-linter, see pyproject.toml):
+
+* the engine, as torch has it: :class:`Tensor`, :mod:`~mipnet.autograd`, :mod:`~mipnet.ops`,
+  :mod:`~mipnet.nn`, :mod:`~mipnet.optim`, :mod:`~mipnet.random`, :mod:`~mipnet.profiler`,
+  :mod:`~mipnet.serialization`, :mod:`~mipnet.utils` and the compiled kernels ``mipnet._core``;
+* the application, one concern a folder: :mod:`~mipnet.model`, :mod:`~mipnet.stereo`,
+  :mod:`~mipnet.underwater`, :mod:`~mipnet.data`, :mod:`~mipnet.training`, :mod:`~mipnet.cli`,
+  :mod:`~mipnet.bench`.
 """
 
+import importlib as _importlib
 import os as _os
+import warnings as _warnings
 
 from . import _core
 from . import errors
 from .autograd import enable_grad, is_grad_enabled, no_grad
 from .tensor import Tensor, tensor
-from . import ops
-from . import nn, optim, losses
-from . import confidence, data, geometry, io, metrics, pretrained, training, underwater, utils, viz
-from .confidence import match_confidence
-from .model import MIPNet, MIPNetConfig, load
 from .random import manual_seed
+from . import autograd, ops, nn, optim, profiler, random, serialization, utils
+from . import model, stereo, underwater, data, training
+from .model import MIPNet, MIPNetConfig, load
+from .stereo import match_confidence
 
 __version__ = _core.__version__
 
@@ -36,5 +46,27 @@ def get_num_threads() -> int:
 # A forked child has none of the parent's pool threads: rebuild the pool there on first use.
 _os.register_at_fork(after_in_child=_core._reset_after_fork)
 
-__all__ = ["MIPNet", "MIPNetConfig", "load", "manual_seed", "nn", "optim", "losses", "confidence", "match_confidence", "data", "geometry", "io", "metrics", "pretrained", "training", "underwater", "utils", "viz", "Tensor", "tensor", "no_grad", "enable_grad", "is_grad_enabled", "ops", "errors",
-           "set_num_threads", "get_num_threads", "__version__"]
+#: Module names of mipnet 0.1 that moved in 0.2 -> where they are now. Attribute access (``mipnet.metrics``)
+#: still works with a DeprecationWarning until 0.3; ``import mipnet.metrics`` does not.
+_MOVED = {
+    "losses": "mipnet.model.losses", "memory": "mipnet.model.memory", "pretrained": "mipnet.model.pretrained",
+    "blocks": "mipnet.model.blocks", "io": "mipnet.stereo.io", "metrics": "mipnet.stereo.metrics",
+    "evaluation": "mipnet.stereo.evaluation", "geometry": "mipnet.stereo.geometry",
+    "confidence": "mipnet.stereo.confidence", "baselines": "mipnet.stereo.baselines",
+    "filters": "mipnet.stereo.filters", "viz": "mipnet.stereo.viz", "weights": "mipnet.serialization",
+    "machine": "mipnet.bench.machine",
+}
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        _warnings.warn(f"mipnet.{name} moved to {_MOVED[name]} in mipnet 0.2; the old name goes in 0.3",
+                       DeprecationWarning, stacklevel=2)
+        return _importlib.import_module(_MOVED[name])
+    raise AttributeError(f"module 'mipnet' has no attribute {name!r}")
+
+
+__all__ = ["MIPNet", "MIPNetConfig", "load", "match_confidence", "Tensor", "tensor", "no_grad", "enable_grad",
+           "is_grad_enabled", "manual_seed", "set_num_threads", "get_num_threads", "__version__",
+           "autograd", "ops", "nn", "optim", "profiler", "random", "serialization", "utils", "errors",
+           "model", "stereo", "underwater", "data", "training"]

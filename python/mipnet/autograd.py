@@ -15,7 +15,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from . import _allocator, _core
+from .utils import allocator as _allocator
+from . import _core
 from . import profiler as _profiler
 from .errors import DTypeError
 

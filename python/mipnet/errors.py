@@ -28,7 +28,7 @@ class FormatError(MipnetError):
 class MemoryLimitError(MipnetError, MemoryError):
     """A forward pass or training step would need more memory than the machine has available.
 
-    Raised before the pass starts (see :mod:`mipnet.memory`); ``estimate`` and ``available`` are in
+    Raised before the pass starts (see :mod:`mipnet.model.memory`); ``estimate`` and ``available`` are in
     bytes."""
 
     def __init__(self, message: str, estimate: int = 0, available: int = 0):

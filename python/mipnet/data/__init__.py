@@ -13,7 +13,7 @@ from .datasets import (
     SceneFlow,
     StereoDataset,
 )
-from .loader import DataLoader, default_collate
+from ..utils.data.dataloader import DataLoader, default_collate
 from .real import REAL_SETS, RealPairs, fetch_real, real_data_dir
 from .scenes import GENERATOR_VERSION, SceneStereo, make_scene
 from .synthetic import SyntheticStereo, make_pair, synthetic_underwater_pairs

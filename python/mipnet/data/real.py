@@ -21,7 +21,7 @@ import urllib.request
 
 import numpy as np
 
-from .._fileutil import atomic_write
+from ..utils.files import atomic_write
 from ..errors import ArgumentError, FormatError
 from .datasets import Dataset
 from .synthetic import apply_water

@@ -697,7 +697,7 @@ def _shade(scene: _Scene, owner: np.ndarray, x_left: np.ndarray) -> np.ndarray:
 def _camera(rng: np.random.Generator, image: np.ndarray) -> np.ndarray:
     """One view's camera: exposure, white balance and vignetting (gains on linear light, applied as
     gain^(1/2.2) to the gamma-encoded image), slight blur, signal-dependent noise; uint8 out."""
-    from ..filters import gaussian_blur
+    from ..stereo.filters import gaussian_blur
 
     height, width = image.shape[:2]
     exposure = np.exp(rng.normal(0.0, 0.1))

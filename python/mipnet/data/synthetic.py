@@ -211,7 +211,7 @@ def water_for_item(underwater, seed: int) -> tuple[dict | None, str | None]:
     if underwater is None:
         return None, None
     if isinstance(underwater, str) and underwater == "random":
-        from ..underwater import random_water
+        from ..underwater.water import random_water
 
         return {"preset": random_water(np.random.default_rng([seed, 2]))}, "random"
     if isinstance(underwater, dict):
@@ -223,7 +223,7 @@ def water_for_item(underwater, seed: int) -> tuple[dict | None, str | None]:
 
 def apply_water(pair: dict, underwater, seed: int) -> str | None:
     """Degrades ``pair``'s images in place as :func:`water_for_item` says; returns the label."""
-    from ..underwater import degrade
+    from ..underwater.formation import degrade
 
     options, label = water_for_item(underwater, seed)
     if options is not None:
@@ -245,12 +245,12 @@ def check_seed(function: str, seed) -> int:
 
 
 def _check_water(owner: str, underwater) -> None:
-    from ..underwater import PRESETS, WaterParams, _resolve_params
+    from ..underwater.water import PRESETS, WaterParams, resolve_params
 
     if isinstance(underwater, dict):
         options = dict(underwater)
         try:
-            _resolve_params(options.pop("preset", "coastal"), options)
+            resolve_params(options.pop("preset", "coastal"), options)
         except (TypeError, ValueError) as error:
             raise ArgumentError(f"{owner}: bad underwater options {underwater!r}: {error}") from None
     elif not (underwater is None or underwater == "random" or isinstance(underwater, WaterParams)
@@ -332,7 +332,7 @@ def synthetic_underwater_pairs(
     """Evaluation pairs: procedural scenes degraded with an underwater preset.
 
     Returns a :class:`SyntheticStereo` (indexable and iterable), e.g. for
-    :func:`mipnet.evaluation.evaluate_method`.
+    :func:`mipnet.stereo.evaluation.evaluate_method`.
 
     Shapes
     ------

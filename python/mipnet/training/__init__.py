@@ -9,7 +9,7 @@ logs and plots.
 from .augment import SparseStereoAugmentor, StereoAugmentor, make_augmentor
 from .checkpoint import load_latest_checkpoint
 from .config import PRESETS, TrainConfig, resolve_config
-from .data_spec import EVAL_SEED_START, Mixture, parse_spec
+from ..data.registry import EVAL_SEED_START, Mixture, parse_spec
 from .fit import fit
 from .plot import plot
 

@@ -47,7 +47,7 @@ from PIL import Image, ImageEnhance, ImageStat
 
 from ..errors import ArgumentError, DTypeError, ShapeError
 from ..random import log_uniform
-from ..underwater import linear_to_srgb, srgb_to_linear
+from ..underwater.color import linear_to_srgb, srgb_to_linear
 
 __all__ = ["AugmentParams", "ColorParams", "VeilParams", "NoiseParams", "StereoAugmentor", "SparseStereoAugmentor", "make_augmentor"]
 

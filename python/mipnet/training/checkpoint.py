@@ -22,7 +22,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import FormatError
-from ..weights import load_safetensors, save_safetensors
+from ..serialization import load_safetensors, save_safetensors
 
 KEEP = 2
 FORMAT = "mipnet-checkpoint-1"

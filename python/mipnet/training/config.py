@@ -32,6 +32,11 @@ DEFAULT_DATA = ("scenes:0.55", "scenes-underwater:0.3", "synthetic:0.1", "synthe
 # Values of TrainConfig.noise_sources.
 NOISE_SOURCES = ("all", "air")
 
+#: The settings a resumed run may change (``mipnet train --resume`` / ``fit(resume=True, overrides=...)``):
+#: they change neither the data order nor the numbers, only where and how often the run works and reports.
+#: ``steps``, the target step, is given apart.
+RESUMABLE_OVERRIDES = ("workers", "val_every", "checkpoint_every")
+
 
 @dataclasses.dataclass
 class TrainConfig:
@@ -72,7 +77,7 @@ class TrainConfig:
         but the generated under-water ones (``scenes-underwater``, ``synthetic-underwater``), whose
         renderer already draws a sensor's noise under the water's own light.
     data : list of str
-        Data specs (see :mod:`mipnet.training.data_spec`), e.g. ``["scenes:0.7", "kitti2015:/data/kitti:0.3"]``.
+        Data specs (see :mod:`mipnet.data.registry`), e.g. ``["scenes:0.7", "kitti2015:/data/kitti:0.3"]``.
     init : str or None
         Weights (``.safetensors``) to start from instead of random initialisation.
     seed : int

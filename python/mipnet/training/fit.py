@@ -29,17 +29,17 @@ from typing import Iterator
 import numpy as np
 
 from .._core import __version__
-from .._fileutil import atomic_write
-from ..data.loader import DataLoader
+from ..utils.files import atomic_write
+from ..utils.data.dataloader import DataLoader
 from ..errors import ArgumentError
-from ..losses import sequence_loss, sequence_metrics
-from ..model import MIPNet, load
+from ..model.losses import sequence_loss, sequence_metrics
+from ..model.network import MIPNet, load
 from ..optim import AdamW, OneCycleLR, clip_grad_norm_
 from ..random import default_generator, manual_seed
 from .augment import make_augmentor
 from .checkpoint import TrainState, list_checkpoints, load_latest_checkpoint, save_checkpoint
-from .config import TrainConfig
-from .data_spec import EVAL_SEED_START, Mixture, is_sparse, open_spec, parse_spec, renders_sensor_noise
+from .config import RESUMABLE_OVERRIDES, TrainConfig
+from ..data.registry import EVAL_SEED_START, Mixture, is_sparse, open_spec, parse_spec, renders_sensor_noise
 from .log import TrainLog
 from .validation import format_validation, mean_epe, validate_model, validate_sgbm, validation_sets
 
@@ -150,17 +150,16 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
         Show a tqdm progress bar on stderr.
     overrides : dict, optional
         With ``resume``: settings that may change between sessions without changing results
-        (``workers``, ``val_every``, ``checkpoint_every``).
+        (:data:`mipnet.training.config.RESUMABLE_OVERRIDES`).
     """
     os.makedirs(out, exist_ok=True)
     state: TrainState | None = None
     if resume:
         state = load_latest_checkpoint(out)
         config = TrainConfig.from_json(state.config_json)
-        allowed = {"workers", "val_every", "checkpoint_every"}
-        bad = sorted(set(overrides or {}) - allowed)
+        bad = sorted(set(overrides or {}) - set(RESUMABLE_OVERRIDES))
         if bad:
-            raise ArgumentError(f"mipnet train --resume: {bad} cannot change in a resumed run (only {sorted(allowed)})")
+            raise ArgumentError(f"mipnet train --resume: {bad} cannot change in a resumed run (only {list(RESUMABLE_OVERRIDES)})")
         config = dataclasses.replace(config, **{k: v for k, v in (overrides or {}).items() if v is not None})
     elif config is None:
         raise ArgumentError("fit: needs a TrainConfig unless resume=True")

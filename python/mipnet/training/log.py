@@ -7,7 +7,7 @@ import json
 import math
 import os
 
-from .._fileutil import atomic_write
+from ..utils.files import atomic_write
 
 
 def _finite_or_none(value):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from .._fileutil import atomic_write
+from ..utils.files import atomic_write
 from .log import TrainLog
 
 

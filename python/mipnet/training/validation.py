@@ -9,10 +9,10 @@ from typing import Callable
 
 import numpy as np
 
-from ..evaluation import evaluate_method, sgbm_rows
+from ..stereo.evaluation import evaluate_method, sgbm_rows
 from ..data.synthetic import VALIDATION_SEED_START
 from .augment import VeilParams
-from .data_spec import open_spec, parse_spec
+from ..data.registry import open_spec, parse_spec
 
 METRICS = ("epe", "bad1", "bad2", "bad3")
 

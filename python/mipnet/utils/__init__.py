@@ -1,5 +1,6 @@
-"""torch-style import paths: ``mipnet.utils.data.Dataset`` / ``DataLoader`` (``torch.utils.data``)."""
+"""Engine utilities: datasets and loading (:mod:`mipnet.utils.data`, as ``torch.utils.data``), the
+allocator's settings (:mod:`mipnet.utils.allocator`) and atomic file writes (:mod:`mipnet.utils.files`)."""
 
-from . import data
+from . import allocator, data, files
 
-__all__ = ["data"]
+__all__ = ["allocator", "data", "files"]

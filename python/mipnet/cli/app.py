@@ -21,9 +21,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .errors import ArgumentError, MipnetError, ShapeError
+from ..data.registry import DATASETS
+from ..errors import ArgumentError, MipnetError, ShapeError
 
-ASSETS = Path(__file__).resolve().parent / "assets"
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
 EXAMPLE_LEFT, EXAMPLE_RIGHT = ASSETS / "example_left.png", ASSETS / "example_right.png"
 UNTRAINED_SEED = 0
 
@@ -32,12 +33,12 @@ def load_model(weights: str | None, quiet: bool = False):
     """The model to run: the weights file given, else the weights shipped with the package; an
     installation without them falls back to the untrained network (seeded) and says so."""
     import mipnet
-    from . import pretrained
+    from ..model import pretrained
 
     if weights:
         return mipnet.load(weights).eval()
     if pretrained.available():
-        return pretrained.load_pretrained()
+        return mipnet.MIPNet.pretrained()
     if not quiet:
         print("WARNING: this installation ships no trained MIPNet weights: this is the UNTRAINED network "
               f"(random initialisation, seed {UNTRAINED_SEED}); its disparities are not meaningful. "
@@ -49,8 +50,8 @@ def load_model(weights: str | None, quiet: bool = False):
 def describe_weights(weights: str | None, history: bool = False) -> list[str]:
     """Lines saying what a weights file (default: the shipped one) was trained on: how it was made and its last
     run's recipe, its steps and validation table; ``history``: every run of its lineage and every command."""
-    from . import pretrained
-    from .weights import load_safetensors
+    from ..model import pretrained
+    from ..serialization import load_safetensors
 
     if weights:
         meta, label = pretrained.decode_metadata(load_safetensors(weights)[1]), weights
@@ -171,8 +172,8 @@ def _expand(pattern: str) -> list[str]:
 def read_pair(left_path: str, right_path: str) -> tuple[np.ndarray, np.ndarray]:
     """The two images of a stereo pair as RGB uint8; ShapeError naming both files if their sizes differ
     or are below the model's minimum."""
-    from . import io
-    from .model import MIN_SIZE
+    from ..stereo import io
+    from ..model.network import MIN_SIZE
 
     left, right = io.read_image(left_path), io.read_image(right_path)
     (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
@@ -185,8 +186,8 @@ def read_pair(left_path: str, right_path: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def cmd_infer(args: argparse.Namespace) -> int:
-    from . import geometry, io, viz
-    from .confidence import match_confidence
+    from ..stereo import geometry, io, viz
+    from ..stereo.confidence import match_confidence
 
     if (args.left is None) != (args.right is None):
         raise ArgumentError("give both -l/--left and -r/--right, or neither (bundled example pair)")
@@ -241,7 +242,7 @@ def cmd_infer(args: argparse.Namespace) -> int:
 
 
 def _write_npy(path: str, array: np.ndarray) -> None:
-    from ._fileutil import atomic_write
+    from ..utils.files import atomic_write
 
     with atomic_write(path) as f:
         np.save(f, array)
@@ -267,7 +268,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         print(f"  {key:<{width}}  {n:>10,}")
     print(f"  {'total':<{width}}  {model.num_parameters():>10,}")
     if args.size:
-        from . import memory
+        from ..model import memory
 
         room = memory.available_memory()
         print("memory (estimated" + (f"; available now {memory.format_bytes(room[0])}, {room[1]}):" if room else "):"))
@@ -284,47 +285,29 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-DATASETS = ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater", "motorcycle", "cones", "sceneflow", "middlebury2014", "middeval3", "eth3d",
-            "kitti2012", "kitti2015", "crestereo")
-
-
 def open_dataset(args: argparse.Namespace):
-    """The evaluation pairs named by ``--dataset`` (``--root`` for the on-disk sets)."""
-    from . import data
+    """The evaluation pairs named by ``--dataset`` (``--root`` for the on-disk sets and fetched real pairs)."""
+    from ..data.registry import open_dataset as open_registered
 
-    if args.dataset in ("synthetic", "synthetic-underwater", "scenes", "scenes-underwater"):
-        h, w = args.size
-        underwater = args.dataset.endswith("-underwater")
-        if underwater and args.preset is None:
-            raise ArgumentError(f"--dataset {args.dataset} needs --preset (clear, coastal, turbid, low_light, random)")
-        generator = data.SceneStereo if args.dataset.startswith("scenes") else data.SyntheticStereo
-        return generator(args.n, h, w, seed=args.seed, underwater=args.preset if underwater else None)
-    if args.dataset in data.REAL_SETS:  # real Middlebury pairs (evaluation only); --root: where cones was fetched
-        return data.RealPairs(args.dataset, underwater=args.preset, seed=args.seed, root=args.root)
-    if not args.root:
+    entry = DATASETS[args.dataset]
+    if entry.underwater and args.preset is None:
+        raise ArgumentError(f"--dataset {args.dataset} needs --preset (clear, coastal, turbid, low_light, random)")
+    if entry.kind == "disk" and not args.root:
         raise ArgumentError(f"--dataset {args.dataset} needs --root DIR")
-    make = {
-        "sceneflow": lambda: data.SceneFlow(args.root, split="TEST"),
-        "middlebury2014": lambda: data.Middlebury2014(args.root),
-        "middeval3": lambda: data.MiddEval3(args.root, split="training", resolution=args.resolution),
-        "eth3d": lambda: data.ETH3D(args.root, split="training"),
-        "kitti2012": lambda: data.KITTI(args.root, year=2012),
-        "kitti2015": lambda: data.KITTI(args.root, year=2015),
-        "crestereo": lambda: data.CREStereo(args.root),
-    }[args.dataset]
-    return make()
+    return open_registered(args.dataset, root=args.root, split="test", size=tuple(args.size), seed=args.seed,
+                           count=args.n, water=args.preset, resolution=args.resolution)
 
 
 def cmd_fetch(args: argparse.Namespace) -> int:
-    from .data.real import fetch_real
+    from ..data.real import fetch_real
 
     print(f"mipnet fetch: {args.name} is in {fetch_real(args.name, root=args.root)}")
     return 0
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from . import pretrained
-    from .evaluation import format_table, mipnet_rows, sgbm_rows
+    from ..model import pretrained
+    from ..stereo.evaluation import format_table, mipnet_rows, sgbm_rows
 
     methods = set(args.methods.split(","))
     if not methods or not methods <= {"mipnet", "sgbm"}:
@@ -424,7 +407,7 @@ class ImageSize(argparse.Action):
     """``--size H W``: an image size the model accepts (both sides >= MIN_SIZE)."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from .model import MIN_SIZE
+        from ..model.network import MIN_SIZE
 
         h, w = values
         if min(h, w) < MIN_SIZE:
@@ -474,7 +457,7 @@ def build_parser() -> argparse.ArgumentParser:
     info.set_defaults(func=cmd_info)
 
     ev = sub.add_parser("eval", help="metrics of MIPNet and OpenCV SGBM on a dataset")
-    ev.add_argument("--dataset", required=True, choices=DATASETS)
+    ev.add_argument("--dataset", required=True, choices=list(DATASETS))
     ev.add_argument("--root", help="dataset root folder (official layout)")
     ev.add_argument("--weights", help="weights file (.safetensors written by MIPNet.save)")
     ev.add_argument("--iters", type=int, nargs=2, default=(6, 6), metavar=("N16", "N4"), action=Iters)
@@ -501,7 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     fetch.add_argument("--root", help="folder to keep it in (default $MIPNET_REAL_DATA or ~/.cache/mipnet/real)")
     fetch.set_defaults(func=cmd_fetch)
 
-    from .training.cli import add_parser
+    from .train import add_parser
 
     add_parser(sub)
     return p

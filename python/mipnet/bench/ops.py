@@ -36,8 +36,8 @@ import numpy as np
 import mipnet
 import mipnet.ops as M
 from mipnet import _core
-from mipnet.bench_model import ENGINES
-from mipnet.machine import machine_header
+from mipnet.bench.model import ENGINES
+from mipnet.bench.machine import machine_header
 
 
 #: Pause after each block of runs of one library (longer than OpenMP's spin-wait).
@@ -177,7 +177,7 @@ def step_conv_cases(spec: str, torch: Any) -> list[tuple[BenchCase, int]]:
     inputs as in ``bench model``) as forward + backward rows, each with how often the step runs it,
     most frequent first."""
     import mipnet.ops._conv as conv_module
-    from mipnet.bench_model import _parse_train
+    from mipnet.bench.model import _parse_train
 
     h, w, n, iters = _parse_train(spec)
     counts: dict[tuple, int] = {}
@@ -201,7 +201,7 @@ def step_conv_cases(spec: str, torch: Any) -> list[tuple[BenchCase, int]]:
     conv_module._core = _Recorder()
     try:
         preds = model(left, np.roll(left, -4, axis=3), iters=iters)
-        mipnet.losses.sequence_loss(preds, gt, gt > 0).backward()
+        mipnet.model.losses.sequence_loss(preds, gt, gt > 0).backward()
     finally:
         conv_module._core = core
     rows = []
@@ -317,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     model.add_argument("--profile", action="store_true", help="also print mipnet's profile of eval and train")
     args = parser.parse_args(argv)
     if args.command == "model":
-        from .bench_model import run as run_model
+        from .model import run as run_model
 
         hw = lambda s: tuple(int(v) for v in s.lower().split("x"))  # noqa: E731
         return run_model(args.threads, [hw(s) for s in args.sizes], args.train, args.engines, args.profile, args.warmup,
@@ -331,6 +331,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     mipnet.set_num_threads(args.threads)
     return run_ops(args, torch)
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -15,7 +15,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ._fileutil import atomic_write
+from .utils.files import atomic_write
 from .errors import ArgumentError, FormatError
 
 __all__ = ["save_safetensors", "load_safetensors", "average_safetensors"]

@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ArgumentError, MemoryLimitError
+from ..errors import ArgumentError, MemoryLimitError
+from .config import DIVISOR, MIPNetConfig
 
 __all__ = ["MemoryEstimate", "estimate", "activation_bytes", "activation_terms", "available_memory", "check",
            "check_forward", "format_bytes", "measure_peak", "recompute_heads"]
@@ -38,7 +39,6 @@ MMAP_THRESHOLD_MAX = 32 * MiB
 #: encoder's tensors are heap-sized: the memory the encoder freed stays in the process while the
 #: 1/4-level stage allocates its own; 1.2 when they are mapped: kernel temporaries only).
 EVAL_HEAP_FACTOR, EVAL_MMAP_FACTOR = 1.8, 1.25
-DIVISOR = 16  # the model pads H and W to multiples of 16
 #: Maps per image a training prediction's mask head and upsampling keep for backward at their level:
 #: conv1's ReLU output (256) and the mask (144).
 HEAD_CHANNELS = 400
@@ -120,8 +120,6 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     dict
         Name -> bytes.
     """
-    from .model import MIPNetConfig
-
     cfg = config or MIPNetConfig()
     if mode not in ("eval", "train"):
         raise ArgumentError(f"memory: mode must be 'eval' or 'train', got {mode!r}")
@@ -197,14 +195,10 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
             "backward": backward}
 
 
-def kept_kernel_bytes(model: Any = None) -> int:
-    """Bytes an eval process keeps for the float32 Winograd kernels of ``model`` (default: a full MIPNet):
+def kept_kernel_bytes(model: Any) -> int:
+    """Bytes an eval process keeps for the float32 Winograd kernels of ``model`` (a MIPNet):
     each 3x3, 1x5 or 5x1 kernel of 32 channels or more in and out, copied, and transformed into 36 (3x3) or
     8 values per channel pair, its output channels padded to 8."""
-    if model is None:
-        from .model import MIPNet
-
-        model = MIPNet()
     total = 0
     for p in model.parameters():
         shape = p.data.shape
@@ -215,24 +209,22 @@ def kept_kernel_bytes(model: Any = None) -> int:
     return total
 
 
-def model_bytes(model: Any = None, itemsize: int = 4) -> int:
+def model_bytes(model: Any) -> int:
     """Bytes of the parameters and buffers of ``model`` (default: a full MIPNet of ``itemsize``),
     counted without copying them."""
-    if model is None:
-        from .model import MIPNet
-
-        return model_bytes(MIPNet()) // 4 * itemsize
     return (sum(p.data.nbytes for p in model.parameters())
             + sum(np.asarray(b).nbytes for _, b in model.named_buffers()))
 
 
 def estimate(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
              model: Any = None) -> MemoryEstimate:
-    """The predicted peak memory of a pass of ``model`` (default: a float32 MIPNet) on images of
-    ``height`` x ``width``. A training step adds the parameter gradients to the saved activations."""
-    config = model.config if model is not None else None
-    itemsize = model.dtype.itemsize if model is not None else 4
-    weights = model_bytes(model, itemsize)
+    """The predicted peak memory of a pass of ``model`` (a MIPNet) on images of ``height`` x ``width``.
+    A training step adds the parameter gradients to the saved activations."""
+    if model is None:
+        raise ArgumentError("memory.estimate: pass the model (e.g. mipnet.MIPNet()) whose pass to estimate")
+    config = model.config
+    itemsize = model.dtype.itemsize
+    weights = model_bytes(model)
     extra = activation_bytes(height, width, batch, mode, tuple(iters), config, itemsize)
     if mode == "train":
         extra += weights  # the gradient of every parameter
@@ -346,7 +338,7 @@ if mode == "eval":
     model.eval()(left, right, iters=(n16, n4))
 else:
     gt = np.full((n, 1, h, w), 4.0, np.float32)
-    mipnet.losses.sequence_loss(model.train()(left, right, iters=(n16, n4)), gt, gt > 0).backward()
+    mipnet.model.losses.sequence_loss(model.train()(left, right, iters=(n16, n4)), gt, gt > 0).backward()
 # VmHWM, the peak of this process's own memory map: ru_maxrss would also count the parent's resident
 # memory at fork time, which Linux carries over exec
 hwm = next(line for line in open("/proc/self/status") if line.startswith("VmHWM:"))

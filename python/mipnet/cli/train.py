@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from .config import NOISE_SOURCES, PRESETS, load_config_file, resolve_config
+from ..training.config import NOISE_SOURCES, PRESETS, RESUMABLE_OVERRIDES, load_config_file, resolve_config
 
 # flags that map one-to-one onto TrainConfig fields
 _FIELDS = ("steps", "schedule_steps", "batch_size", "crop", "iters", "lr", "init", "seed", "val_every", "val_pairs",
@@ -58,14 +58,14 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from ..errors import ArgumentError
-    from .fit import fit
+    from ..training.fit import fit
 
     if args.resume:
         given = [f"--{f.replace('_', '-')}" for f in _FIELDS + ("augment", "freeze_bn", "config", "preset", "out")
-                 if getattr(args, f, None) is not None and f not in ("steps", "workers", "val_every", "checkpoint_every")]
+                 if getattr(args, f, None) is not None and f != "steps" and f not in RESUMABLE_OVERRIDES]
         if given:
             raise ArgumentError(f"mipnet train --resume: {', '.join(given)} cannot change in a resumed run")
-        overrides = {"workers": args.workers, "val_every": args.val_every, "checkpoint_every": args.checkpoint_every}
+        overrides = {f: getattr(args, f) for f in RESUMABLE_OVERRIDES}
         fit(None, args.resume, resume=True, steps=args.steps, progress=not args.quiet, overrides=overrides)
         return 0
     if not args.out:

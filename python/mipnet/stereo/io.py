@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from ._fileutil import atomic_write
-from .errors import FormatError
+from ..utils.files import atomic_write
+from ..errors import FormatError
 
 __all__ = [
     "read_pfm",

@@ -6,10 +6,10 @@ key table (f.2) and weights move unchanged between mipnet and PyTorch.
 
 from __future__ import annotations
 
-from . import ops
-from .autograd import checkpoint, is_grad_enabled
-from .nn import BatchNorm2d, Conv2d, InstanceNorm2d, Module, Sequential, init
-from .tensor import Tensor
+from .. import ops
+from ..autograd import checkpoint, is_grad_enabled
+from ..nn import BatchNorm2d, Conv2d, InstanceNorm2d, Module, Sequential, init
+from ..tensor import Tensor
 
 __all__ = ["MSCAMBranch", "MSCAM", "IAFF", "ResBlock", "Stem", "Encoder", "IPMotionEncoder", "RLSMotionEncoder", "ConvGRU",
            "SepConvGRU", "DispHead", "MaskHead", "UpdateBlock", "ip_update_block", "rls_update_block"]

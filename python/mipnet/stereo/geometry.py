@@ -1,4 +1,4 @@
-"""Disparity -> depth -> point cloud, from a calibration dict as :func:`mipnet.io.read_calib` returns.
+"""Disparity -> depth -> point cloud, from a calibration dict as :func:`mipnet.stereo.io.read_calib` returns.
 
 A calibration dict needs ``fx`` and ``baseline``; ``doffs`` (default 0), ``baseline_unit``
 (``"m"``, ``"cm"`` or ``"mm"``; default ``"m"``), and for point clouds ``fy`` (default ``fx``),

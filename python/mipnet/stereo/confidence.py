@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ArgumentError, ShapeError
+from ..errors import ArgumentError, ShapeError
 from .filters import box_sum, gaussian_blur
 
 __all__ = ["match_confidence"]

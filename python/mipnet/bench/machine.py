@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from . import _core
+from .. import _core
 
 __all__ = ["PEAK_DRIFT", "cpu_name", "fma_peak_gflops", "machine_header", "peak_drift_line"]
 

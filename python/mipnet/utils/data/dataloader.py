@@ -21,7 +21,7 @@ from numbers import Number
 
 import numpy as np
 
-from ..errors import ShapeError
+from ...errors import ShapeError
 
 __all__ = ["DataLoader", "default_collate"]
 

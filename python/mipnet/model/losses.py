@@ -6,9 +6,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from . import ops
-from .errors import ArgumentError, ShapeError
-from .tensor import Tensor
+from .. import ops
+from ..errors import ArgumentError, ShapeError
+from ..tensor import Tensor
 
 __all__ = ["valid_mask", "sequence_loss", "sequence_metrics"]
 

@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 
-from .errors import ShapeError
+from ..errors import ShapeError
 from .metrics import MetricAccumulator, aggregate
 
 __all__ = ["evaluate_method", "sgbm_rows", "mipnet_rows", "result_row", "format_table", "COVERAGES", "DEFAULT_COLUMNS"]
@@ -106,7 +106,7 @@ def evaluate_method(pairs: Iterable[dict], predict_fn: Callable, coverage: str =
     -------
     dict
         ``per_image``: list of metric dicts (plus ``name``: the left path or the index);
-        ``mean``: :func:`mipnet.metrics.aggregate` of them (ETH3D style);
+        ``mean``: :func:`mipnet.stereo.metrics.aggregate` of them (ETH3D style);
         ``pooled``: metrics over all pixels together (KITTI style);
         ``coverage``: percent of ground-truth pixels the method predicted.
 
@@ -185,7 +185,7 @@ def sgbm_rows(pairs: Iterable[dict], method: str = "SGBM", aggregation: str = "m
     on_error : callable, optional
         As for :func:`evaluate_method`.
     **sgbm_options
-        Passed to :func:`mipnet.baselines.sgbm`.
+        Passed to :func:`mipnet.stereo.baselines.sgbm`.
 
     Returns
     -------

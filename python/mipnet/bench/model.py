@@ -44,7 +44,7 @@ AGREEMENT_LOSS = 1e-2
 
 def reference_dir() -> Path | None:
     """tests_py/ of the source tree holding the torch reference, if reachable."""
-    for base in (Path.cwd(), Path(__file__).resolve().parents[2]):
+    for base in (Path.cwd(), Path(__file__).resolve().parents[3]):
         if (base / "tests_py" / "reference" / "mipnet_torch.py").is_file():
             return base / "tests_py"
     return None
@@ -79,7 +79,7 @@ if engine == "mipnet":
         opt = mipnet.optim.AdamW(model.parameters(), lr=1e-4, weight_decay=1e-5)
         def run():
             opt.zero_grad()
-            loss = mipnet.losses.sequence_loss(model(left, right, iters=iters, disp_init=d0), gt, gt > 0)
+            loss = mipnet.model.losses.sequence_loss(model(left, right, iters=iters, disp_init=d0), gt, gt > 0)
             loss.backward()
             with mipnet.profiler.record("AdamW.step"):
                 opt.step()

@@ -14,7 +14,7 @@ def _import_cv2():
         import cv2
     except ImportError as exc:
         raise ImportError(
-            "mipnet.baselines.sgbm needs OpenCV: pip install opencv-python-headless"
+            "mipnet.stereo.baselines.sgbm needs OpenCV: pip install opencv-python-headless"
         ) from exc
     return cv2
 

@@ -21,7 +21,7 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from .errors import ShapeError
+from ..errors import ShapeError
 
 __all__ = ["evaluate", "aggregate", "MetricAccumulator", "THRESHOLDS", "QUANTILES", "METRIC_KEYS"]
 

@@ -14,26 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FormatError
-from .weights import load_safetensors, save_safetensors
+from ..errors import FormatError
+from ..serialization import load_safetensors, save_safetensors
 
-PRETRAINED_PATH = Path(__file__).resolve().parent / "assets" / "mipnet_pretrained.safetensors"
+PRETRAINED_PATH = Path(__file__).resolve().parents[1] / "assets" / "mipnet_pretrained.safetensors"
 
-__all__ = ["PRETRAINED_PATH", "available", "load_pretrained", "pretrained_info", "decode_metadata", "export_pretrained"]
+__all__ = ["PRETRAINED_PATH", "available", "pretrained_info", "decode_metadata", "export_pretrained"]
 
 
 def available() -> bool:
     """Whether this installation ships trained weights."""
     return PRETRAINED_PATH.is_file()
-
-
-def load_pretrained():
-    """The eval-mode ``MIPNet`` with the shipped weights (float32)."""
-    from .model import load
-
-    if not available():
-        raise FormatError(f"mipnet ships no trained weights in this installation (expected {PRETRAINED_PATH})")
-    return load(str(PRETRAINED_PATH)).eval()
 
 
 def pretrained_info() -> dict:

@@ -7,53 +7,26 @@ f = (f_x, f_y), f_x = -disparity, f_y = 0 (vertical constraint).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from typing import Any, Sequence
 
 import numpy as np
 from PIL import Image
 
-from . import ops
-from .autograd import checkpoint, is_grad_enabled, no_grad
-from .profiler import scope
+from .. import ops
+from ..autograd import checkpoint, is_grad_enabled, no_grad
+from ..profiler import scope
 from .blocks import Encoder, UpdateBlock, ip_update_block, rls_update_block
-from .errors import ArgumentError, ShapeError
+from ..errors import ArgumentError, FormatError, ShapeError
 from .memory import check_forward, recompute_heads
-from .nn import BatchNorm2d, Module
-from .random import default_generator
-from .tensor import Tensor
+from ..nn import BatchNorm2d, Module
+from ..random import default_generator
+from ..serialization import load_safetensors, save_safetensors
+from ..tensor import Tensor
+from . import pretrained
+from .config import DIVISOR, MIN_SIZE, MIPNetConfig
 
 __all__ = ["MIPNet", "MIPNetConfig", "load", "gamma_draw"]
-
-DIVISOR = 16  # H and W of the padded input must be multiples of 16 (stride 4 encoder x 4x4 pooling)
-MIN_SIZE = 32
-
-
-@dataclasses.dataclass(frozen=True)
-class MIPNetConfig:
-    """The architecture switches of the paper's ablations (Table 1, Table 2) and the gamma init."""
-
-    use_aff: bool = True
-    use_ip: bool = True
-    use_rls: bool = True
-    rx: int = 3
-    ry: int = 1
-    vertical_constraint: bool = True
-    gamma_shape: float = 2.0
-    gamma_scale: float = 16.0
-    max_disp_init: float = 192.0
-
-    def __post_init__(self) -> None:
-        if not (self.use_ip or self.use_rls):
-            raise ArgumentError("MIPNet: at least one of use_ip / use_rls must be on")
-        if self.rx < 0 or self.ry < 0:
-            raise ArgumentError(f"MIPNet: rx and ry must be >= 0, got rx={self.rx}, ry={self.ry}")
-        if self.gamma_shape <= 0 or self.gamma_scale <= 0 or self.max_disp_init <= 0:
-            raise ArgumentError("MIPNet: gamma_shape, gamma_scale and max_disp_init must be positive")
-
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
 
 class MIPNet(Module):
@@ -228,14 +201,12 @@ class MIPNet(Module):
     def pretrained(cls) -> "MIPNet":
         """The eval-mode model with the weights shipped inside the package (``mipnet info`` says what
         they were trained on; ``docs/training.md`` how)."""
-        from .pretrained import load_pretrained
-
-        return load_pretrained()
+        if not pretrained.available():
+            raise FormatError(f"mipnet ships no trained weights in this installation (expected {pretrained.PRETRAINED_PATH})")
+        return load(str(pretrained.PRETRAINED_PATH)).eval()
 
     def save(self, path: str, **metadata: str) -> None:
         """Writes the state dict to a safetensors file with the config in its metadata (atomic)."""
-        from .weights import save_safetensors
-
         meta = {"format": "mipnet", "config": self.config.to_json(), **{k: str(v) for k, v in metadata.items()}}
         save_safetensors(path, self.state_dict(), meta)
 
@@ -243,9 +214,6 @@ class MIPNet(Module):
 def load(path: str, strict: bool = True) -> MIPNet:
     """A ``MIPNet`` built from the config stored in a safetensors file written by ``MIPNet.save``,
     with its weights loaded. A file that is not such weights raises ``FormatError`` naming it."""
-    from .errors import FormatError
-    from .weights import load_safetensors
-
     tensors, meta = load_safetensors(path)
     try:
         config = json.loads(meta["config"]) if "config" in meta else {}
