@@ -13,12 +13,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 
-# an installed mipnet comes first; the checkout's own python/ is the fallback
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-from mipnet.serialization import average_safetensors, load_safetensors, save_safetensors  # noqa: E402
+from mipnet.serialization import average_safetensors, load_safetensors, save_safetensors
 
 
 def main() -> int:

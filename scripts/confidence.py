@@ -17,17 +17,15 @@ confidence, and the disparity where the confidence reaches the middle threshold.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 import numpy as np
 
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-import mipnet  # noqa: E402
-from mipnet.data.synthetic import VALIDATION_SEED_START, apply_water, make_pair, water_for_item  # noqa: E402
-from mipnet.stereo.filters import box_sum  # noqa: E402
-from mipnet.underwater import degrade  # noqa: E402
+import mipnet
+from mipnet.stereo.metrics import evaluate
+from mipnet.data.synthetic import VALIDATION_SEED_START, apply_water, make_pair, water_for_item
+from mipnet.stereo.filters import box_sum
+from mipnet.underwater import degrade
 
 
 def main() -> int:
@@ -45,7 +43,7 @@ def main() -> int:
     print(f"{args.pairs} validation pairs per set from seed {VALIDATION_SEED_START:,} at {args.size[0]}x{args.size[1]}, "
           f"iterations {iters}; mipnet.match_confidence with its defaults (window 15, band 1-8 px)")
     for name in ("air", "turbid", "low_light") if args.pairs > 0 else ():
-        errors, confidences, veil, veil_disparity, near_objects = [], [], [], [], []
+        predictions, truths, confidences, veil, veil_disparity, near_objects = [], [], [], [], [], []
         for seed in range(VALIDATION_SEED_START, VALIDATION_SEED_START + args.pairs):
             pair = make_pair(*args.size, seed)
             valid = pair["valid"]
@@ -60,9 +58,11 @@ def main() -> int:
                 veil_disparity.append(d[far])
                 apply_water(pair, name, seed)
             d = model(pair["left"], pair["right"], iters=iters)
-            errors.append(np.abs(d - pair["disparity"])[valid])
+            predictions.append(d[valid])
+            truths.append(pair["disparity"][valid])
             confidences.append(mipnet.match_confidence(pair["left"], pair["right"], d)[valid])
-        report(name, np.concatenate(errors), np.concatenate(confidences), args.thresholds, veil)
+        report(name, np.concatenate(predictions), np.concatenate(truths), np.concatenate(confidences), args.thresholds,
+               veil)
         if veil:
             near, c = np.concatenate(near_objects), np.concatenate(veil)
             kept = c >= args.thresholds[len(args.thresholds) // 2]
@@ -79,17 +79,19 @@ def main() -> int:
             continue
         d = model(pair["left"], pair["right"], iters=iters)
         valid = pair["valid"]
-        report(name, np.abs(d - pair["disparity"])[valid],
+        report(name, d[valid], pair["disparity"][valid],
                mipnet.match_confidence(pair["left"], pair["right"], d)[valid], args.thresholds, [])
     return 0
 
 
-def report(name: str, e: np.ndarray, c: np.ndarray, thresholds: list[float], veil: list[np.ndarray]) -> None:
-    """A set's line and one line per threshold: kept share, EPE / bad-3 of the kept and of the dropped pixels."""
-    print(f"{name}: all {e.mean():.2f} px / {100 * (e > 3).mean():.1f}%")
+def report(name: str, pred: np.ndarray, gt: np.ndarray, c: np.ndarray, thresholds: list[float],
+           veil: list[np.ndarray]) -> None:
+    """A set's line and one line per threshold: kept share, EPE / bad-3 of the kept and of the dropped pixels
+    (``pred``, ``gt``, ``c``: the valid pixels of every pair, flattened)."""
+    print(f"{name}: all {score(pred, gt)}")
     for t in thresholds:
         kept = c >= t
-        line = f"  C {t:g}: kept {100 * kept.mean():5.1f}%  {score(e[kept])}  |  dropped {score(e[~kept])}"
+        line = f"  C {t:g}: kept {100 * kept.mean():5.1f}%  {score(pred[kept], gt[kept])}  |  dropped {score(pred[~kept], gt[~kept])}"
         if veil:
             line += f"  |  open water kept {100 * (np.concatenate(veil) >= t).mean():4.1f}%"
         print(line)
@@ -125,8 +127,12 @@ def figure(model, size, iters, threshold: float, path: str) -> None:
     print(f"wrote {path}")
 
 
-def score(e: np.ndarray) -> str:
-    return f"{e.mean():5.2f} px / {100 * (e > 3).mean():5.1f}%" if e.size else "  (none)"
+def score(pred: np.ndarray, gt: np.ndarray) -> str:
+    """EPE / bad-3 of the pixels given (mipnet.stereo.metrics)."""
+    if not pred.size:
+        return "  (none)"
+    m = evaluate(pred, gt)
+    return f"{m['epe']:5.2f} px / {m['bad3']:5.1f}%"
 
 
 if __name__ == "__main__":

@@ -13,17 +13,13 @@ evaluation's (docs/training.md, stage 8).
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 
 import numpy as np
 
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-from mipnet.data import SceneStereo, SyntheticStereo  # noqa: E402
-from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
-from mipnet.training import resolve_config  # noqa: E402
-from mipnet.training.fit import build_dataset  # noqa: E402
+from mipnet.data import SceneStereo, SyntheticStereo
+from mipnet.data.synthetic import VALIDATION_SEED_START
+from mipnet.training import resolve_config
+from mipnet.training.fit import build_dataset
 
 
 def summary(samples) -> str:

@@ -16,16 +16,14 @@ truth, and the median signed error in 8-px bands of truth that hold at least 5% 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 import numpy as np
 
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-import mipnet  # noqa: E402
-from mipnet.data import SyntheticStereo  # noqa: E402
-from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
+import mipnet
+from mipnet.stereo.metrics import evaluate
+from mipnet.data import SyntheticStereo
+from mipnet.data.synthetic import VALIDATION_SEED_START
 
 BANDS = ((0, 16), (16, 32), (32, 48), (48, np.inf))
 SETS = {"air": None, "turbid": "turbid", "low_light": "low_light"}
@@ -39,12 +37,12 @@ def per_pair(model, args) -> None:
     for i, s in enumerate(SyntheticStereo(args.pairs, *args.size, seed=VALIDATION_SEED_START, underwater=water)):
         d = model(s["left"], s["right"], iters=tuple(args.iters))
         signed, g = (d - s["disparity"])[s["valid"]], s["disparity"][s["valid"]]
-        e = np.abs(signed)
+        m = evaluate(d, s["disparity"], s["valid"])
         # band b holds truth in [8b, 8b + 8)
         band = (g // 8).astype(int)
         cells = [f"{8 * b}-{8 * b + 8}: {np.median(signed[band == b]):+6.2f} ({100 * np.mean(band == b):2.0f}%)"
                  for b in np.unique(band) if np.mean(band == b) >= 0.05]
-        print(f"pair {VALIDATION_SEED_START + i}  EPE {e.mean():5.2f}  bad-3 {100 * (e > 3).mean():5.1f}%  "
+        print(f"pair {VALIDATION_SEED_START + i}  EPE {m['epe']:5.2f}  bad-3 {m['bad3']:5.1f}%  "
               f"median truth {np.median(g):5.1f}  " + "  ".join(cells))
 
 
@@ -67,16 +65,16 @@ def main() -> int:
     for water in SETS.values():
         pairs = list(SyntheticStereo(args.pairs, *args.size, seed=VALIDATION_SEED_START, underwater=water))
         for scale in (1.0, args.scale):
-            signed, gt = [], []
+            predictions, truths = [], []
             for s in pairs:
                 d = model(s["left"], s["right"], iters=tuple(args.iters), scale=scale)
-                signed.append((d - s["disparity"])[s["valid"]])
-                gt.append(s["disparity"][s["valid"]])
-            signed, g = np.concatenate(signed), np.concatenate(gt)
-            e = np.abs(signed)
-            bands = [e[(g >= lo) & (g < hi)] for lo, hi in BANDS]
-            cells = " ".join(f"{b.mean():8.2f}" if b.size else f"{'-':>8}" for b in bands)
-            print(f"{water or 'air':10} {scale:5.3g} {e.mean():6.2f} {signed.mean():6.2f} {100 * (e > 3).mean():5.1f}% {cells}")
+                predictions.append(d[s["valid"]])
+                truths.append(s["disparity"][s["valid"]])
+            pred, g = np.concatenate(predictions), np.concatenate(truths)
+            bands = [(g >= lo) & (g < hi) for lo, hi in BANDS]
+            cells = " ".join(f"{evaluate(pred[b], g[b])['epe']:8.2f}" if b.any() else f"{'-':>8}" for b in bands)
+            m = evaluate(pred, g)
+            print(f"{water or 'air':10} {scale:5.3g} {m['epe']:6.2f} {np.mean(pred - g):6.2f} {m['bad3']:5.1f}% {cells}")
     return 0
 
 

@@ -14,16 +14,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 import time
 
-# an installed mipnet comes first; the checkout's own python/ is the fallback
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-import mipnet  # noqa: E402
-from mipnet.bench.machine import cpu_name, fma_peak_gflops, machine_header, peak_drift_line  # noqa: E402
-from mipnet.training.validation import validate_model, validate_sgbm, validation_sets  # noqa: E402
+import mipnet
+from mipnet.bench.machine import cpu_name, fma_peak_gflops, machine_header, peak_drift_line
+from mipnet.training.validation import validate_model, validate_sgbm, validation_sets
 
 
 def cells(row: dict) -> str:

@@ -6,19 +6,15 @@ SGBM's disparity and the ground truth, in one colour scale.
 
 from __future__ import annotations
 
-import os
 import sys
 
 import numpy as np
 
-# an installed mipnet comes first; the checkout's own python/ is the fallback
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-import mipnet  # noqa: E402
-from mipnet.stereo import io, viz  # noqa: E402
-from mipnet.stereo.baselines import sgbm  # noqa: E402
-from mipnet.cli import EXAMPLE_LEFT, EXAMPLE_RIGHT  # noqa: E402
-from mipnet.stereo.metrics import evaluate  # noqa: E402
+import mipnet
+from mipnet.stereo import io, viz
+from mipnet.stereo.baselines import sgbm
+from mipnet.cli import EXAMPLE_LEFT, EXAMPLE_RIGHT
+from mipnet.stereo.metrics import evaluate
 
 
 def main(out: str) -> int:

@@ -21,17 +21,14 @@ import json
 import os
 import sys
 
-# an installed mipnet comes first; the checkout's own python/ is the fallback
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-from mipnet.model.pretrained import PRETRAINED_PATH, export_pretrained  # noqa: E402
+from mipnet.data.synthetic import VALIDATION_SEED_START
+from mipnet.model.pretrained import PRETRAINED_PATH, export_pretrained
+from mipnet.serialization import average_safetensors, load_safetensors
+from mipnet.training.log import TrainLog
 
 #: The shipped file of this checkout (where an installed package's own copy comes from).
 CHECKOUT_PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python", "mipnet", "assets",
                                    os.path.basename(PRETRAINED_PATH))
-from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
-from mipnet.training.log import TrainLog  # noqa: E402
-from mipnet.serialization import average_safetensors, load_safetensors  # noqa: E402
 
 
 def main() -> int:

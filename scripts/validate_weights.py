@@ -12,16 +12,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 
-# an installed mipnet comes first; the checkout's own python/ is the fallback
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-import mipnet  # noqa: E402
-from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
-from mipnet.training.validation import format_validation, validate_model, validate_sgbm, validation_sets  # noqa: E402
+import mipnet
+from mipnet.data.synthetic import VALIDATION_SEED_START
+from mipnet.training.validation import format_validation, validate_model, validate_sgbm, validation_sets
 
 
 def main() -> int:

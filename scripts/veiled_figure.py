@@ -10,16 +10,14 @@ A large negative bias there means the network places pale, weakly textured near 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 import numpy as np
 from PIL import Image
 
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-import mipnet  # noqa: E402
-from mipnet.training.validation import validation_sets  # noqa: E402
+import mipnet
+from mipnet.stereo.metrics import evaluate
+from mipnet.training.validation import validation_sets
 
 
 def main() -> int:
@@ -40,8 +38,8 @@ def main() -> int:
         found = {name: model(pair["left"], pair["right"]) for name, pair in (("veiled", veiled), ("plain", plain))}
         cells = []
         for name, disparity in found.items():
-            error = (disparity - truth)[lower][valid[lower]]
-            cells.append(f"{name} EPE {np.abs(error).mean():.2f} bias {error.mean():+.2f}")
+            bias = float(np.mean((disparity - truth)[lower][valid[lower]]))
+            cells.append(f"{name} EPE {evaluate(disparity[lower], truth[lower], valid[lower])['epe']:.2f} bias {bias:+.2f}")
         print(f"pair {i}, lower rows: " + " | ".join(cells))
         top = truth[valid].max()
 

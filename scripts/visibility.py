@@ -14,16 +14,14 @@ surroundings, so the band's bad-3 is the part of a set's bad-3 that better match
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 import numpy as np
 
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-import mipnet  # noqa: E402
-from mipnet.data.synthetic import EVAL_SEED_START, VALIDATION_SEED_START, apply_water, make_pair, water_for_item  # noqa: E402
-from mipnet.underwater import texture_snr  # noqa: E402
+import mipnet
+from mipnet.stereo.metrics import evaluate
+from mipnet.data.synthetic import EVAL_SEED_START, VALIDATION_SEED_START, apply_water, make_pair, water_for_item
+from mipnet.underwater import texture_snr
 
 EDGES = (0.0, 1.0, 3.0, 10.0, np.inf)
 
@@ -48,7 +46,7 @@ def main() -> int:
           f"{tuple(args.iters)}; texture (detail below a blur of sigma px) SNR over a window; share of valid pixels, "
           "EPE, bad-3")
     for name in args.sets:
-        errors, snrs = [], [[] for _ in definitions]
+        predictions, truths, snrs = [], [], [[] for _ in definitions]
         for seed in range(first, first + args.pairs):
             pair = make_pair(*args.size, seed)
             options, _ = water_for_item(name, seed)
@@ -56,25 +54,33 @@ def main() -> int:
             apply_water(pair, name, seed)
             valid = pair["valid"]
             d = model(pair["left"], pair["right"], iters=tuple(args.iters))
-            errors.append(np.abs(d - pair["disparity"])[valid])
+            predictions.append(d[valid])
+            truths.append(pair["disparity"][valid])
             for kept, m in zip(snrs, snr):
                 kept.append(m[valid])
-        e = np.concatenate(errors)
-        print(f"{name:9s} all: {e.mean():5.2f} {100 * (e > 3).mean():5.1f}%")
+        pred, gt = np.concatenate(predictions), np.concatenate(truths)
+        print(f"{name:9s} all: {score(pred, gt)}")
         for (t, w), kept in zip(definitions, snrs):
-            report(e, np.concatenate(kept), f"  sigma {t:g}, {w}x{w}")
+            report(pred, gt, np.concatenate(kept), f"  sigma {t:g}, {w}x{w}")
     return 0
 
 
-def report(e: np.ndarray, s: np.ndarray, label: str) -> None:
-    """One line: EPE and bad-3 of errors ``e`` in each band of SNR ``s``, and over SNR >= 1."""
+def score(pred: np.ndarray, gt: np.ndarray) -> str:
+    """EPE and bad-3 of the pixels given (mipnet.stereo.metrics)."""
+    m = evaluate(pred, gt)
+    return f"{m['epe']:5.2f} {m['bad3']:5.1f}%"
+
+
+def report(pred: np.ndarray, gt: np.ndarray, s: np.ndarray, label: str) -> None:
+    """One line: EPE and bad-3 in each band of SNR ``s``, and over SNR >= 1 (the valid pixels of every pair,
+    flattened)."""
     cells = []
     for lo, hi in zip(EDGES[:-1], EDGES[1:]):
         band = (s >= lo) & (s < hi)
         if band.any():
-            cells.append(f"SNR {lo:g}-{hi:g}: {100 * band.mean():4.1f}% {e[band].mean():5.2f} {100 * (e[band] > 3).mean():5.1f}%")
+            cells.append(f"SNR {lo:g}-{hi:g}: {100 * band.mean():4.1f}% {score(pred[band], gt[band])}")
     seen = s >= 1.0
-    print(f"{label}  |  " + "  |  ".join(cells) + f"  |  SNR >= 1: {e[seen].mean():5.2f} {100 * (e[seen] > 3).mean():5.1f}%")
+    print(f"{label}  |  " + "  |  ".join(cells) + f"  |  SNR >= 1: {score(pred[seen], gt[seen])}")
 
 
 if __name__ == "__main__":

@@ -14,16 +14,14 @@ denoising does not recover it, the faint texture goes with the noise (docs/train
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 import numpy as np
 
-sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-
-import mipnet  # noqa: E402
-from mipnet.data import SyntheticStereo  # noqa: E402
-from mipnet.data.synthetic import VALIDATION_SEED_START  # noqa: E402
+import mipnet
+from mipnet.data import SyntheticStereo
+from mipnet.data.synthetic import VALIDATION_SEED_START
+from mipnet.stereo.metrics import MetricAccumulator
 
 NO_NOISE = {"full_well": 1e8, "read_noise": 0.0}
 RENDERINGS = {"as rendered": {}, "no sensor noise": NO_NOISE, "no sensor noise, no snow": {**NO_NOISE, "marine_snow": 0.0}}
@@ -42,10 +40,11 @@ def denoisers() -> dict:
 
 def pooled_errors(model, pairs, iters, prepare=lambda image: image) -> tuple[float, float]:
     """EPE and bad-3 (%) pooled over the valid pixels of ``pairs``, both views passed through ``prepare``."""
-    errors = [np.abs(model(prepare(s["left"]), prepare(s["right"]), iters=iters) - s["disparity"])[s["valid"]]
-              for s in pairs]
-    e = np.concatenate(errors)
-    return float(e.mean()), float(100 * (e > 3).mean())
+    pooled = MetricAccumulator(quantiles=False)
+    for s in pairs:
+        pooled.update(model(prepare(s["left"]), prepare(s["right"]), iters=iters), s["disparity"], s["valid"])
+    result = pooled.compute()
+    return result["epe"], result["bad3"]
 
 
 def main() -> int:

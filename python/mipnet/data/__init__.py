@@ -1,4 +1,5 @@
-"""Stereo datasets, a seeded DataLoader and procedural pairs (simple planar ones and natural-statistics scenes)."""
+"""Stereo datasets: readers of the public sets, the one registry of names, generated pairs (planar ones,
+natural-statistics scenes, pairs made from real photographs), real evaluation pairs and the bundled example."""
 
 from .datasets import (
     ETH3D,
@@ -14,6 +15,8 @@ from .datasets import (
     StereoDataset,
 )
 from ..utils.data.dataloader import DataLoader, default_collate
+from .example import example_pair
+from .photo_pairs import PhotoStereo, make_photo_pair
 from .real import REAL_SETS, RealPairs, fetch_real, real_data_dir
 from .scenes import GENERATOR_VERSION, SceneStereo, make_scene
 from .synthetic import SyntheticStereo, make_pair, synthetic_underwater_pairs
@@ -42,4 +45,7 @@ __all__ = [
     "REAL_SETS",
     "fetch_real",
     "real_data_dir",
+    "example_pair",
+    "PhotoStereo",
+    "make_photo_pair",
 ]

@@ -4,7 +4,8 @@ Three kinds of set:
 
 * generated (no root): ``scenes`` (natural-statistics scenes, :class:`mipnet.data.SceneStereo`),
   ``scenes-underwater`` (the same under water), ``synthetic`` (the planar scenes of
-  :func:`mipnet.data.make_pair`), ``synthetic-underwater``;
+  :func:`mipnet.data.make_pair`), ``synthetic-underwater``, ``photos`` (pairs made from single real
+  photographs, :class:`mipnet.data.PhotoStereo`), ``photos-underwater``;
 * on disk, with a root folder in the official layout: ``sceneflow``, ``middlebury2014``, ``middeval3``,
   ``eth3d``, ``kitti2012``, ``kitti2015``, ``crestereo``, and ``folder`` (a folder with ``left/``,
   ``right/`` and optionally ``disp/``, files paired by sorted name);
@@ -27,6 +28,7 @@ import numpy as np
 from ..errors import ArgumentError
 from ..utils.data.dataset import Dataset
 from .datasets import CREStereo, ETH3D, KITTI, FolderPairs, MiddEval3, Middlebury2014, SceneFlow
+from .photo_pairs import PhotoStereo
 from .real import REAL_SETS, RealPairs
 from .scenes import SceneStereo
 from .synthetic import EVAL_SEED_START, SyntheticStereo
@@ -75,6 +77,8 @@ _ENTRIES = [
     RegisteredDataset("scenes-underwater", "generated", _generated(SceneStereo, True), underwater=True),
     RegisteredDataset("synthetic", "generated", _generated(SyntheticStereo, False)),
     RegisteredDataset("synthetic-underwater", "generated", _generated(SyntheticStereo, True), underwater=True),
+    RegisteredDataset("photos", "generated", _generated(PhotoStereo, False)),
+    RegisteredDataset("photos-underwater", "generated", _generated(PhotoStereo, True), underwater=True),
     *(RegisteredDataset(name, "real", _real(name)) for name in REAL_SETS),
     RegisteredDataset("sceneflow", "disk",
                       lambda root, split, **_: SceneFlow(root, split="TEST" if split == "test" else "TRAIN")),

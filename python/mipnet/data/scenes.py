@@ -694,7 +694,7 @@ def _shade(scene: _Scene, owner: np.ndarray, x_left: np.ndarray) -> np.ndarray:
     return np.clip(image * scene.cast, 0.0, 1.0).reshape(height, width, 3)
 
 
-def _camera(rng: np.random.Generator, image: np.ndarray) -> np.ndarray:
+def apply_camera(rng: np.random.Generator, image: np.ndarray) -> np.ndarray:
     """One view's camera: exposure, white balance and vignetting (gains on linear light, applied as
     gain^(1/2.2) to the gamma-encoded image), slight blur, signal-dependent noise; uint8 out."""
     from ..stereo.filters import gaussian_blur
@@ -738,7 +738,7 @@ def _render(scene: _Scene, cameras: tuple, clean: bool, layers: bool) -> dict:
     if clean:
         left, right = _quantise(left), _quantise(right)
     else:
-        left, right = _camera(cameras[0], left), _camera(cameras[1], right)
+        left, right = apply_camera(cameras[0], left), apply_camera(cameras[1], right)
     pair = {"left": left, "right": right, "disparity": disparity.astype(np.float32), "valid": valid}
     if layers:
         pair["surface_left"] = owner_left

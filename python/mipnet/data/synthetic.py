@@ -313,7 +313,8 @@ class GeneratedStereo(Dataset):
         seed = self.seed + index
         pair = self.generate(self.height, self.width, seed)
         label = apply_water(pair, self.underwater, seed)
-        pair["meta"] = {"dataset": self.name, "index": index, "seed": seed, "underwater": label, **self.extra_meta()}
+        pair["meta"] = {"dataset": self.name, "index": index, "seed": seed, "underwater": label, **self.extra_meta(),
+                        **pair.get("meta", {})}
         return pair
 
 

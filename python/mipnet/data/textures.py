@@ -210,7 +210,8 @@ def _package_dir(import_name: str) -> str | None:
     return list(spec.submodule_search_locations)[0]
 
 
-def _photo_path(import_name: str, relative: str) -> str | None:
+def photo_path(import_name: str, relative: str) -> str | None:
+    """The file ``relative`` inside the installed package ``import_name`` (None: not installed)."""
     folder = _package_dir(import_name)
     if folder is None:
         return None
@@ -221,7 +222,7 @@ def _photo_path(import_name: str, relative: str) -> str | None:
 @functools.lru_cache(maxsize=None)
 def available_photos() -> tuple[str, ...]:
     """Names (see ``PHOTOS``) of the photographs whose files are installed here, in ``PHOTOS`` order."""
-    return tuple(name for _, module, relative, name, _ in PHOTOS if _photo_path(module, relative) is not None)
+    return tuple(name for _, module, relative, name, _ in PHOTOS if photo_path(module, relative) is not None)
 
 
 @functools.lru_cache(maxsize=None)
@@ -229,7 +230,7 @@ def photo_sources() -> tuple[str, ...]:
     """``distribution-version`` of each package that provides at least one photograph here."""
     found = []
     for distribution, module, relative, _, _ in PHOTOS:
-        if _photo_path(module, relative) is None:
+        if photo_path(module, relative) is None:
             continue
         try:
             label = f"{distribution}-{importlib.metadata.version(distribution)}"
@@ -249,7 +250,7 @@ def photo(name: str) -> Texture:
     from PIL import Image
 
     entries = {entry[3]: entry for entry in PHOTOS}
-    path = _photo_path(entries[name][1], entries[name][2]) if name in entries else None
+    path = photo_path(entries[name][1], entries[name][2]) if name in entries else None
     if path is None:
         raise ArgumentError(f"photo: {name!r} is not an installed photograph; available: {list(available_photos())}")
     with Image.open(path) as opened:

@@ -15,7 +15,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import sys
+from pathlib import Path
 from typing import Any, Mapping
 
 from ..errors import ArgumentError
@@ -208,8 +210,30 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
+#: The folder of the packaged recipes: one TOML run file a stage of the campaign behind the shipped weights.
+RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
+
+
+def recipe_names() -> list[str]:
+    """The packaged recipes, by name (``mipnet train --config NAME`` takes them)."""
+    return sorted((p.stem for p in RECIPES_DIR.glob("*.toml")), key=lambda s: (len(s), s))
+
+
+def config_path(name_or_path: str) -> str:
+    """A run file's path: ``name_or_path`` itself when it is a file, else the packaged recipe of that name."""
+    if os.path.isfile(name_or_path):
+        return name_or_path
+    recipe = RECIPES_DIR / f"{name_or_path}.toml"
+    if recipe.is_file():
+        return str(recipe)
+    raise ArgumentError(f"mipnet train: no config file {name_or_path!r} and no recipe of that name; "
+                        f"the recipes are {recipe_names()}")
+
+
 def read_config_file(path: str) -> dict[str, Any]:
-    """The settings of a TOML run file (keys are ``TrainConfig`` fields; ``preset = "cpu"`` allowed)."""
+    """The settings of a TOML run file or packaged recipe (keys are ``TrainConfig`` fields; ``preset = "cpu"``
+    allowed)."""
+    path = config_path(path)
     try:
         with open(path, "rb") as f:
             settings = tomllib.load(f)
