@@ -20,13 +20,13 @@
 //! fuse the multiply-add); the portable path rounds the product and the sum separately.
 
 mod cpu;
-mod isa;
+mod simd;
 mod kernel;
 mod pack;
 mod peak;
 
 pub use cpu::{cpu_info, CpuInfo};
-pub use isa::{Isa, ISA_ENV};
+pub use crate::isa::{Isa, ISA_ENV};
 pub(crate) use kernel::Init;
 use kernel::{Tile, UKernel};
 pub(crate) use pack::{InPlace, PackB, Prepacked, SourceA, Strided};
@@ -66,8 +66,8 @@ macro_rules! pick {
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn ukernel<E: Float>(isa: Isa, mr: usize, nv: usize) -> Option<UKernel<E>>
 where
-    isa::Avx512: isa::Simd<E>,
-    isa::Avx2: isa::Simd<E>,
+    simd::Avx512: simd::Simd<E>,
+    simd::Avx2: simd::Simd<E>,
 {
     match isa {
         Isa::Avx512 => pick!(mr, nv, avx512; (8, 3), (12, 2), (14, 2), (6, 4)),
@@ -97,7 +97,7 @@ fn default_shape(isa: Isa) -> (usize, usize) {
 /// Elements of E per vector register of `isa`.
 fn lanes<E>(isa: Isa) -> usize {
     match isa {
-        Isa::Generic => isa::GENERIC_LANES,
+        Isa::Generic => simd::GENERIC_LANES,
         _ => isa.vector_bits() / 8 / std::mem::size_of::<E>(),
     }
 }
@@ -197,7 +197,7 @@ impl<E: Float> Plan<E> {
     fn portable() -> &'static Plan<E> {
         let (mr, nv) = default_shape(Isa::Generic);
         E::gemm_kernels().plans[Isa::Generic.index()].get_or_init(|| Plan {
-            isa: Isa::Generic, mr, nr: nv * isa::GENERIC_LANES, kc: 256, mc: 256, nc: 256,
+            isa: Isa::Generic, mr, nr: nv * simd::GENERIC_LANES, kc: 256, mc: 256, nc: 256,
             kernel: kernel::generic::<E, 4, 2>,
         })
     }

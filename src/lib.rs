@@ -10,6 +10,7 @@ pub mod alloc;
 pub mod error;
 pub mod float;
 pub mod gemm;
+pub mod isa;
 pub mod ops;
 pub mod parallel;
 pub mod tensor;
@@ -18,6 +19,7 @@ pub mod tensor;
 mod python;
 
 pub use error::{Error, Result};
+pub use isa::{Isa, ISA_ENV};
 
 #[global_allocator]
 static GLOBAL: alloc::HugePageAlloc = alloc::HugePageAlloc;

@@ -1,5 +1,5 @@
 //! IP and RLS correlations: hand-computed forwards, f64 gradchecks of both gradients of each backward
-//! at the spec's channel layout (C = 8, S = 5, G = 2, rx = 3, ry = 1), determinism, and errors.
+//! at the network's channel layout (C = 8, S = 5, G = 2, rx = 3, ry = 1), determinism, and errors.
 mod common;
 
 use _core::ops::corr::*;
@@ -157,7 +157,7 @@ fn warp_by_grid_sample(x: &ArrayD<f64>, fx: &ArrayD<f64>) -> ArrayD<f64> {
     grid_sample_fwd(x.view(), grid.view(), &cfg).unwrap().into_dyn()
 }
 
-/// The seed stack of spec a.6: stack[s·C + c, y, x] = fr[c, clamp(y + oy), clamp(x + ox)].
+/// The seed stack of architecture.md §2.5: stack[s·C + c, y, x] = fr[c, clamp(y + oy), clamp(x + ox)].
 fn seed_stack(fr: &ArrayD<f64>, seeds: &[(isize, isize)]) -> ArrayD<f64> {
     let (n, c, h, w) = (fr.shape()[0], fr.shape()[1], fr.shape()[2], fr.shape()[3]);
     let cl = |v: isize, m: usize| v.clamp(0, m as isize - 1) as usize;

@@ -7,7 +7,7 @@
 //! K block continues) plus, in increasing k, the sums of runs of `SUB_K` fused multiply-adds, so
 //! the result does not depend on MR, NR or the block sizes.
 
-use super::isa::Simd;
+use super::simd::Simd;
 
 /// How a tile's accumulators start.
 #[derive(Clone, Copy, Debug)]
@@ -149,9 +149,9 @@ macro_rules! isa_entry {
 }
 
 #[cfg(target_arch = "x86_64")]
-isa_entry!(avx512, super::isa::Avx512, "avx512f");
+isa_entry!(avx512, super::simd::Avx512, "avx512f");
 #[cfg(target_arch = "x86_64")]
-isa_entry!(avx2, super::isa::Avx2, "avx2,fma");
+isa_entry!(avx2, super::simd::Avx2, "avx2,fma");
 
 /// [`micro`] on the portable path.
 ///
@@ -160,5 +160,5 @@ isa_entry!(avx2, super::isa::Avx2, "avx2,fma");
 pub(crate) unsafe fn generic<E: crate::Float, const MR: usize, const NV: usize>(kc: usize, pa: *const E, pb: *const E,
                                                                              ldb: usize, t: &Tile<E>) {
     // SAFETY: forwarded contract; the portable path needs no CPU feature.
-    unsafe { micro::<E, super::isa::Generic, MR, NV>(kc, pa, pb, ldb, t) }
+    unsafe { micro::<E, super::simd::Generic, MR, NV>(kc, pa, pb, ldb, t) }
 }

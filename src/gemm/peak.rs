@@ -5,7 +5,8 @@
 //! so the loop is bound by FMA throughput alone. Threads start together behind a barrier; the
 //! result is the best of several timed repetitions.
 
-use super::isa::{Isa, Simd};
+use super::simd::Simd;
+use super::Isa;
 use crate::{Error, Result};
 use std::sync::Barrier;
 use std::time::Instant;
@@ -41,19 +42,19 @@ unsafe fn chains<S: Simd<f32>, const C: usize>(iters: usize) -> f32 {
 #[target_feature(enable = "avx512f")]
 unsafe fn chains_avx512(iters: usize) -> f32 {
     // SAFETY: AVX-512F is enabled for this body; the caller checked the CPU has it.
-    unsafe { chains::<super::isa::Avx512, CHAINS_WIDE>(iters) }
+    unsafe { chains::<super::simd::Avx512, CHAINS_WIDE>(iters) }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn chains_avx2(iters: usize) -> f32 {
     // SAFETY: AVX2 and FMA are enabled for this body; the caller checked the CPU has them.
-    unsafe { chains::<super::isa::Avx2, CHAINS_AVX2>(iters) }
+    unsafe { chains::<super::simd::Avx2, CHAINS_AVX2>(iters) }
 }
 
 fn chains_generic(iters: usize) -> f32 {
     // SAFETY: the portable path needs no CPU feature.
-    unsafe { chains::<super::isa::Generic, CHAINS_GENERIC>(iters) }
+    unsafe { chains::<super::simd::Generic, CHAINS_GENERIC>(iters) }
 }
 
 /// Runs [`chains`] on AVX-512 (reached only after `Isa::supported`).
@@ -78,7 +79,7 @@ fn kernel(isa: Isa) -> (fn(usize) -> f32, f64) {
         Isa::Avx512 => (run_avx512, 2.0 * (CHAINS_WIDE * 16) as f64),
         #[cfg(target_arch = "x86_64")]
         Isa::Avx2 => (run_avx2, 2.0 * (CHAINS_AVX2 * 8) as f64),
-        _ => (chains_generic, 2.0 * (CHAINS_GENERIC * super::isa::GENERIC_LANES) as f64),
+        _ => (chains_generic, 2.0 * (CHAINS_GENERIC * super::simd::GENERIC_LANES) as f64),
     }
 }
 

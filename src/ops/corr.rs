@@ -1,4 +1,4 @@
-//! The two stereo correlations of MIPNet (spec a.6, a.7), fused: products and channel means are
+//! The two stereo correlations of MIPNet (architecture.md §2.5, §2.6), fused: products and channel means are
 //! computed in one pass, without the views, pads and slices of the PyTorch formulation.
 //!
 //! | op | forward | backward (grads to) |

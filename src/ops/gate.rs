@@ -1,4 +1,4 @@
-//! iAFF's attentional gate (spec a.3), fused: out = w ⊙ x + (1 - w) ⊙ y with w = σ(L + G), where L is
+//! iAFF's attentional gate (architecture.md §2.2), fused: out = w ⊙ x + (1 - w) ⊙ y with w = σ(L + G), where L is
 //! the local branch (N, C, H, W) and G the global branch (N, C, 1, 1), broadcast over H, W.
 //!
 //! | op | forward | backward (grads to) |

@@ -1,4 +1,4 @@
-//! The gate arithmetic of a convolutional GRU step (spec a.8), fused around its two convolutions:
+//! The gate arithmetic of a convolutional GRU step (architecture.md §2.7), fused around its two convolutions:
 //! z̃ and r̃ come from one convolution of hx = [h, x] (weights of convz and convr stacked), q̃ from a
 //! convolution of [r ⊙ h, x], and
 //!

@@ -7,47 +7,13 @@
 //! the sums onto one AVX-512 register, two AVX2 registers or four SSE2 registers, and without FMA
 //! contraction every ISA computes the same bits. So results do not depend on the ISA or the thread count.
 //!
-//! `MIPNET_ISA` (`avx512`, `avx2`, `generic`) lowers the instruction set below what the CPU offers.
+//! The loops of `multiversion!` run on [`Isa::selected`](crate::Isa::selected), the one choice of
+//! instruction set of the crate (`src/isa.rs`: `MIPNET_ISA`, else the widest the CPU has).
 
 use crate::Float;
-use std::sync::OnceLock;
 
 /// Running sums of [`dot`].
 pub const LANES: usize = 16;
-
-/// The instruction set the multiversioned loops run with.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-pub enum Isa {
-    Generic,
-    Avx2,
-    Avx512,
-}
-
-/// The best instruction set of this CPU, capped by `MIPNET_ISA`; decided once per process.
-pub fn isa() -> Isa {
-    static ISA: OnceLock<Isa> = OnceLock::new();
-    *ISA.get_or_init(|| {
-        let cpu = detect();
-        match std::env::var("MIPNET_ISA").ok().as_deref().map(str::trim) {
-            Some("generic") => Isa::Generic,
-            Some("avx2") => cpu.min(Isa::Avx2),
-            _ => cpu,
-        }
-    })
-}
-
-fn detect() -> Isa {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f") {
-            return Isa::Avx512;
-        }
-        if is_x86_feature_detected!("avx2") {
-            return Isa::Avx2;
-        }
-    }
-    Isa::Generic
-}
 
 /// Σ a_i b_i over the common length, in the fixed order of the module doc.
 #[inline(always)]
@@ -114,8 +80,8 @@ pub fn blocked_sum<F: Float, const K: usize>(runs: [&[F]; K], term: impl Fn([F; 
 }
 
 /// Defines `fn $name<F: Float>(args)` whose body is compiled three times (AVX-512F, AVX2, generic)
-/// and dispatched on [`isa`]. The body must only call `#[inline(always)]` helpers for them to be
-/// compiled with the wider registers.
+/// and dispatched on [`Isa::selected`](crate::Isa::selected). The body must only call
+/// `#[inline(always)]` helpers for them to be compiled with the wider registers.
 macro_rules! multiversion {
     ($(#[$meta:meta])* $vis:vis fn $name:ident<F: Float>($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
         $(#[$meta])*
@@ -132,13 +98,13 @@ macro_rules! multiversion {
             unsafe fn avx2<F: $crate::Float>($($arg: $ty),*) {
                 body($($arg),*)
             }
-            match $crate::ops::lanes::isa() {
-                // SAFETY: isa() reports AVX-512F only where the CPU has it.
+            match $crate::Isa::selected() {
+                // SAFETY: the selected ISA is one this CPU supports (AVX-512F here).
                 #[cfg(target_arch = "x86_64")]
-                $crate::ops::lanes::Isa::Avx512 => unsafe { avx512($($arg),*) },
-                // SAFETY: isa() reports AVX2 only where the CPU has it.
+                $crate::Isa::Avx512 => unsafe { avx512($($arg),*) },
+                // SAFETY: as above (AVX2, with FMA).
                 #[cfg(target_arch = "x86_64")]
-                $crate::ops::lanes::Isa::Avx2 => unsafe { avx2($($arg),*) },
+                $crate::Isa::Avx2 => unsafe { avx2($($arg),*) },
                 _ => body($($arg),*),
             }
         }

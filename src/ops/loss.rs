@@ -1,4 +1,4 @@
-//! The masked L1 term of MIPNet's sequence loss (spec §(c.1), (g.5)).
+//! The masked L1 term of MIPNet's sequence loss (architecture.md §3.1).
 //!
 //! | op | forward | backward (grads to) |
 //! |---|---|---|

@@ -1,4 +1,4 @@
-//! Convex upsampling (RAFT; spec a.9), fused: the softmax over the 9 neighbours, the zero-padded 3x3
+//! Convex upsampling (RAFT; architecture.md §2.8), fused: the softmax over the 9 neighbours, the zero-padded 3x3
 //! unfold of R·flow, the weighted sum and the (i, j) sub-pixel interleave in one pass.
 //!
 //! | op | forward | backward (grads to) |

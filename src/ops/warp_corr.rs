@@ -1,5 +1,5 @@
 //! The IP and RLS correlations fused with their warp, for a flow with zero vertical component
-//! (MIPNet's vertical constraint, spec a.4): the warp is then a 1-D horizontal interpolation, so warp,
+//! (MIPNet's vertical constraint, architecture.md §2.3): the warp is then a 1-D horizontal interpolation, so warp,
 //! products and channel means become one pass per pixel and the warped maps (the 1280-channel seed
 //! stack of the IP block, the 256-channel warped map of the RLS block) are never stored.
 //!
@@ -12,7 +12,7 @@
 //! outputs and their gradients are (N, K, h, w). The flow is f_x (N, h, w), in pixels of the level:
 //! pixel (y, x) samples row y at X = clamp(x + f_x, 0, w-1) (border padding, align_corners=True),
 //! W(F)(y, x) = (1-a)·F(y, x0) + a·F(y, x1) with x0 = floor(X), x1 = min(x0+1, w-1), a = X - x0.
-//! The flow gets no gradient (it is detached in MIPNet, spec a.10).
+//! The flow gets no gradient (it is detached in MIPNet, architecture.md §2.9).
 //!
 //! Work is split by output rows (forward, d fl) and by rows of d fr, each owned by one task that sums
 //! in a fixed order, so results are deterministic and independent of the thread count.
@@ -26,7 +26,7 @@ use rayon::prelude::*;
 const IP: &str = "ip_warp_correlation";
 const RLS: &str = "rls_warp_correlation";
 
-/// MIPNet's IP seeds (ox, oy) in stack order (spec a.6): centre, tl, tr, dl, dr.
+/// MIPNet's IP seeds (ox, oy) in stack order (architecture.md §2.5): centre, tl, tr, dl, dr.
 pub const IP_SEEDS: [(isize, isize); 5] = [(0, 0), (-1, -1), (1, -1), (-1, 1), (1, 1)];
 
 /// `v` clamped to the indices 0..n-1.
@@ -197,7 +197,7 @@ multiversion! {
     }
 }
 
-/// IP correlation of the warped seed stack, fused (spec a.6 with the horizontal warp of a.4).
+/// IP correlation of the warped seed stack, fused (architecture.md §2.5 with the horizontal warp of §2.3).
 ///
 /// # Shapes
 /// fl, fr (N, h, w, C) channels-last, flow_x (N, h, w) -> (N, G·S, h, w), with
@@ -392,7 +392,7 @@ multiversion! {
     }
 }
 
-/// RLS correlation of the warped right features, fused (spec a.7 with the horizontal warp of a.4).
+/// RLS correlation of the warped right features, fused (architecture.md §2.6 with the horizontal warp of §2.3).
 ///
 /// # Shapes
 /// fl, fr (N, h, w, C) channels-last, flow_x (N, h, w) -> (N, (2rx+1)(2ry+1), h, w), with

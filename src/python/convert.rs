@@ -56,9 +56,12 @@ pub fn arr_mut<'py, F: Element + crate::Float>(op: &str, name: &str, obj: &Bound
 }
 
 /// Runs a kernel with the GIL released, inside mipnet's thread pool, mapping its error once.
+/// A bad `MIPNET_ISA` refuses every kernel (ArgumentError) before it runs, so that a forced ISA
+/// never silently falls back to another.
 /// Invariant: no numpy buffer borrowed by `f` is mutated by Python while it runs (the borrows
 /// held by the caller make numpy refuse writes through other references).
 pub fn run_kernel<T: Send>(py: Python<'_>, f: impl FnOnce() -> Result<T> + Send) -> PyResult<T> {
+    crate::Isa::from_env()?;
     py.detach(|| crate::parallel::install(f)).map_err(Into::into)
 }
 

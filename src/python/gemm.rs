@@ -2,13 +2,12 @@
 //! ISA path and plan it takes, and the measured FMA peak.
 
 use numpy::IntoPyArray;
-use pyo3::exceptions::PyImportError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::convert::{arr, float_dispatch, run_kernel};
 use crate::gemm::{cpu_info, fma_peak_gflops as peak, Isa, Plan};
-use crate::{Error, Float};
+use crate::Error;
 
 /// a · b through mipnet's GEMM (`matmul_par`), for benchmarking it.
 ///
@@ -36,10 +35,10 @@ fn gemm_fwd<'py>(py: Python<'py>, a: &Bound<'py, PyAny>, b: &Bound<'py, PyAny>) 
     })
 }
 
-/// The path named `isa`, or the selected one for None.
+/// The path named `isa`, or the selected one for None (ArgumentError for a bad `MIPNET_ISA`).
 fn isa_arg(isa: Option<&str>) -> PyResult<Isa> {
     match isa {
-        None => Ok(Isa::selected()),
+        None => Ok(Isa::from_env()?),
         Some(name) => Isa::parse(name).map_err(|e| Error::arg("isa", e).into()),
     }
 }
@@ -52,6 +51,7 @@ fn isa_arg(isa: Option<&str>) -> PyResult<Isa> {
 ///     "isa_supported" (list), "vector_bits" and "plan" (micro-tile and block sizes, f32).
 #[pyfunction]
 fn cpu_info_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let isa = Isa::from_env()?;
     let cpu = cpu_info();
     let d = PyDict::new(py);
     d.set_item("model", &cpu.model)?;
@@ -60,10 +60,10 @@ fn cpu_info_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("l2", cpu.l2)?;
     d.set_item("l3", cpu.l3)?;
     d.set_item("cache_source", cpu.cache_source)?;
-    d.set_item("isa", Isa::selected().name())?;
+    d.set_item("isa", isa.name())?;
     d.set_item("isa_detected", Isa::detected().name())?;
     d.set_item("isa_supported", Isa::ALL.into_iter().filter(|i| i.supported()).map(Isa::name).collect::<Vec<_>>())?;
-    d.set_item("vector_bits", Isa::selected().vector_bits())?;
+    d.set_item("vector_bits", isa.vector_bits())?;
     d.set_item("plan", Plan::<f32>::selected().describe())?;
     Ok(d)
 }
@@ -78,11 +78,6 @@ fn cpu_info_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 fn fma_peak_gflops(py: Python<'_>, threads: usize, isa: Option<&str>) -> PyResult<f64> {
     let isa = isa_arg(isa)?;
     Ok(py.detach(|| peak(threads, isa))?)
-}
-
-/// Refuses to import with an invalid `MIPNET_ISA`, so a forced path never silently falls back.
-pub fn check_env() -> PyResult<()> {
-    Isa::from_env().map(|_| ()).map_err(|e| PyImportError::new_err(format!("mipnet: {e}")))
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -32,15 +32,11 @@ fn get_num_threads() -> usize {
     crate::parallel::num_threads()
 }
 
-/// The instruction set of the channels-last kernels (warp_corr): "avx512", "avx2" or "generic"
-/// (`MIPNET_ISA` lowers it).
+/// The instruction set every kernel runs on: "avx512", "avx2" or "generic" (`MIPNET_ISA` lowers
+/// it). Raises ArgumentError for a bad `MIPNET_ISA`, as every kernel call does.
 #[pyfunction]
-fn simd_isa() -> &'static str {
-    match crate::ops::lanes::isa() {
-        crate::ops::lanes::Isa::Avx512 => "avx512",
-        crate::ops::lanes::Isa::Avx2 => "avx2",
-        crate::ops::lanes::Isa::Generic => "generic",
-    }
+fn simd_isa() -> PyResult<&'static str> {
+    Ok(crate::Isa::from_env()?.name())
 }
 
 /// Called by `os.register_at_fork(after_in_child=...)`: the child rebuilds the pool on first use.
@@ -51,7 +47,6 @@ fn _reset_after_fork() {
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    gemm::check_env()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;

@@ -1,111 +1,12 @@
-//! Which instruction set the GEMM runs on, and the SIMD vocabulary its micro-kernel is written in.
-//!
-//! [`Isa::selected`] is the one run-time choice: the environment variable `MIPNET_ISA`
-//! (`avx512`, `avx2` or `generic`), read once, else the widest ISA the CPU has. The micro-kernel is
-//! written once, generic over [`Simd`]; each ISA implements `Simd` for f32 and f64.
-
-use std::sync::OnceLock;
-
-/// An instruction set the GEMM has a path for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Isa {
-    /// AVX-512F: 32 registers of 16 f32.
-    Avx512,
-    /// AVX2 with FMA: 16 registers of 8 f32.
-    Avx2,
-    /// Portable Rust, no intrinsics (the compiler vectorises what it can with the baseline ISA).
-    Generic,
-}
-
-/// Name of the environment variable that forces an ISA.
-pub const ISA_ENV: &str = "MIPNET_ISA";
-
-impl Isa {
-    /// Every path, widest first.
-    pub const ALL: [Isa; 3] = [Isa::Avx512, Isa::Avx2, Isa::Generic];
-
-    /// Position in [`Isa::ALL`].
-    pub fn index(self) -> usize {
-        match self {
-            Isa::Avx512 => 0,
-            Isa::Avx2 => 1,
-            Isa::Generic => 2,
-        }
-    }
-
-    /// The name `MIPNET_ISA` takes.
-    pub fn name(self) -> &'static str {
-        match self {
-            Isa::Avx512 => "avx512",
-            Isa::Avx2 => "avx2",
-            Isa::Generic => "generic",
-        }
-    }
-
-    /// Whether this CPU can run the path.
-    pub fn supported(self) -> bool {
-        match self {
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => is_x86_feature_detected!("avx512f"),
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"),
-            Isa::Generic => true,
-            #[cfg(not(target_arch = "x86_64"))]
-            _ => false,
-        }
-    }
-
-    /// The widest path this CPU supports.
-    pub fn detected() -> Isa {
-        Isa::ALL.into_iter().find(|i| i.supported()).unwrap_or(Isa::Generic)
-    }
-
-    /// The path named `s` (case-insensitive), if this CPU supports it.
-    pub fn parse(s: &str) -> Result<Isa, String> {
-        let want = s.trim().to_ascii_lowercase();
-        let Some(isa) = Isa::ALL.into_iter().find(|i| i.name() == want) else {
-            return Err(format!("{ISA_ENV}={s:?} is not an ISA mipnet has; use one of avx512, avx2, generic (or unset it)"));
-        };
-        if !isa.supported() {
-            return Err(format!("{ISA_ENV}={s:?}: this CPU does not support {}; it supports {}", isa.name(),
-                               Isa::ALL.into_iter().filter(|i| i.supported()).map(Isa::name).collect::<Vec<_>>().join(", ")));
-        }
-        Ok(isa)
-    }
-
-    /// `MIPNET_ISA` as read once at start-up: Ok(None) when unset or empty, Err with the reason when it
-    /// names no ISA or one this CPU lacks (the Python module refuses to import then).
-    pub fn from_env() -> Result<Option<Isa>, String> {
-        static ENV: OnceLock<Result<Option<Isa>, String>> = OnceLock::new();
-        ENV.get_or_init(|| match std::env::var(ISA_ENV) {
-            Ok(v) if !v.trim().is_empty() => Isa::parse(&v).map(Some),
-            _ => Ok(None),
-        })
-        .clone()
-    }
-
-    /// The path every GEMM takes: `MIPNET_ISA` if it is valid, else the detected one. (An invalid
-    /// value is reported by [`Isa::from_env`]; the Python module refuses to import with it.)
-    pub fn selected() -> Isa {
-        static SEL: OnceLock<Isa> = OnceLock::new();
-        *SEL.get_or_init(|| Isa::from_env().ok().flatten().unwrap_or_else(Isa::detected))
-    }
-
-    /// Bits of one vector register of this path.
-    pub fn vector_bits(self) -> usize {
-        match self {
-            Isa::Avx512 => 512,
-            Isa::Avx2 => 256,
-            Isa::Generic => 128,
-        }
-    }
-}
+//! The SIMD vocabulary the GEMM's micro-kernel and the peak measurement are written in: one
+//! implementation of [`Simd`] per [`Isa`](crate::Isa) path, for f32 and f64. Which path runs is
+//! [`Isa::selected`](crate::Isa::selected)'s choice (`src/isa.rs`).
 
 /// The vector operations the micro-kernel and the peak measurement use, for element type `E`.
 ///
 /// # Safety
 /// Implementations for an ISA may only be called where the CPU supports it (inside a function
-/// compiled with that ISA's `target_feature`, reached after [`Isa::supported`]).
+/// compiled with that ISA's `target_feature`, reached after [`Isa::supported`](crate::Isa::supported)).
 pub(crate) unsafe trait Simd<E: Copy>: Copy {
     /// One register of `LANES` elements.
     type V: Copy;
