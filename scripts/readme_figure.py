@@ -13,13 +13,13 @@ import numpy as np
 import mipnet
 from mipnet.stereo import io, viz
 from mipnet.stereo.baselines import sgbm
-from mipnet.cli import EXAMPLE_LEFT, EXAMPLE_RIGHT
+from mipnet.data.example import EXAMPLE_DISPARITY, EXAMPLE_LEFT, EXAMPLE_RIGHT
 from mipnet.stereo.metrics import evaluate
 
 
 def main(out: str) -> int:
     left, right = io.read_image(str(EXAMPLE_LEFT)), io.read_image(str(EXAMPLE_RIGHT))
-    gt = io.read_pfm(str(EXAMPLE_LEFT.parent / "example_disp.pfm"))
+    gt = io.read_pfm(str(EXAMPLE_DISPARITY))
     valid = np.isfinite(gt) & (gt > 0)
     ours = mipnet.MIPNet.pretrained()(left, right)
     theirs, covered = sgbm(left, right)

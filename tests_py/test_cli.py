@@ -46,7 +46,7 @@ def test_infer_globs_write_every_output_with_calibration(pairs_dir, tmp_path, ca
 def test_infer_without_images_runs_the_shipped_weights_on_the_bundled_example(tmp_path, capsys):
     assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1"]) == 0
     disp = np.load(tmp_path / "example_left_disp.npy")
-    from mipnet.cli.app import EXAMPLE_LEFT, EXAMPLE_RIGHT
+    from mipnet.data.example import EXAMPLE_LEFT, EXAMPLE_RIGHT
 
     expected = mipnet.MIPNet.pretrained()(io.read_image(EXAMPLE_LEFT), io.read_image(EXAMPLE_RIGHT), iters=(1, 1))
     np.testing.assert_array_equal(disp, expected)
@@ -54,7 +54,7 @@ def test_infer_without_images_runs_the_shipped_weights_on_the_bundled_example(tm
 
 
 def test_infer_scale_writes_a_full_size_disparity_in_input_pixels(tmp_path):
-    from mipnet.cli.app import EXAMPLE_LEFT, EXAMPLE_RIGHT
+    from mipnet.data.example import EXAMPLE_LEFT, EXAMPLE_RIGHT
 
     assert main(["infer", "-o", str(tmp_path), "--iters", "1", "1", "--scale", "0.5"]) == 0
     disp = np.load(tmp_path / "example_left_disp.npy")

@@ -164,6 +164,7 @@ def test_eval_skips_an_unreadable_pair_and_scores_the_others(files, capsys):
     rows = [line for line in out.splitlines() if line.startswith("| MIPNet") or line.startswith("| SGBM")]
     assert len(rows) == 3 and all(line.rstrip(" |").endswith("2") for line in rows), rows
     assert "mipnet eval: 1 of 3 pairs failed:" in err
+    assert sum("mipnet eval: skipped" in line for line in err) == 1, err  # once, not once per method
     assert any("disp_occ_0/000001_10.png" in line and "cannot decode image" in line for line in err)
 
 

@@ -1,4 +1,4 @@
-"""The ``mipnet`` command line: ``infer``, ``eval``, ``train``, ``info``, ``fetch``."""
+"""The ``mipnet`` command line: ``infer``, ``eval``, ``train``, ``info``, ``fetch`` (one module each)."""
 
 from .app import main
 

@@ -10,8 +10,12 @@ Settings resolve as preset < ``--config`` file < flags.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
+import sys
+from collections.abc import Iterator
 
-from ..training.config import NOISE_SOURCES, PRESETS, RESUMABLE_OVERRIDES, load_config_file, resolve_config
+from ..training.config import NOISE_SOURCES, PRESETS, RESUMABLE_OVERRIDES, load_config_file, recipe_names, resolve_config
 
 # flags that map one-to-one onto TrainConfig fields
 _FIELDS = ("steps", "schedule_steps", "batch_size", "crop", "iters", "lr", "init", "seed", "val_every", "val_pairs",
@@ -25,22 +29,27 @@ def add_parser(sub) -> argparse.ArgumentParser:
                        description="Train MIPNet. Settings: preset < --config file < flags.")
     p.add_argument("--out", help="run folder (log.jsonl, model.safetensors, checkpoint/)")
     p.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its newest checkpoint")
-    p.add_argument("--config", help="TOML file of TrainConfig settings")
+    p.add_argument("--config", metavar="FILE|RECIPE",
+                   help="TOML file of TrainConfig settings, or the name of a packaged recipe "
+                        f"({', '.join(recipe_names())})")
     p.add_argument("--preset", choices=sorted(PRESETS), help="named settings (paper-stage1, paper-stage2, cpu, finetune)")
     p.add_argument("--data", nargs="+", metavar="SPEC", help="NAME[:ROOT][:WEIGHT] ... (e.g. scenes:0.7 kitti2015:/data/kitti:0.3)")
     p.add_argument("--steps", type=int, help="train until this step")
     p.add_argument("--schedule-steps", type=int, help="one-cycle length (default: --steps of the first start)")
-    p.add_argument("--batch-size", type=int)
-    p.add_argument("--crop", type=int, nargs=2, metavar=("H", "W"))
+    p.add_argument("--batch-size", type=int, metavar="N", help="training pairs per step (TrainConfig default 8)")
+    p.add_argument("--crop", type=int, nargs=2, metavar=("H", "W"),
+                   help="size of the training crops, after augmentation (TrainConfig default 384 512)")
     p.add_argument("--iters", type=int, nargs=2, metavar=("N16", "N4"), help="IPM iterations per level while training")
     p.add_argument("--lr", type=float, help="max learning rate of the one-cycle schedule")
     p.add_argument("--init", metavar="WEIGHTS", help="start from these weights (.safetensors)")
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=int, help="seed of the initialisation, data order and augmentation (TrainConfig default 1234)")
     p.add_argument("--val-every", type=int, help="validate every K steps (0: never)")
     p.add_argument("--val-pairs", type=int, help="held-out generated pairs per validation set")
-    p.add_argument("--val-size", type=int, nargs=2, metavar=("H", "W"))
+    p.add_argument("--val-size", type=int, nargs=2, metavar=("H", "W"),
+                   help="size of the held-out validation pairs (TrainConfig default 256 320)")
     p.add_argument("--val-data", metavar="SPEC", help="also validate on this dataset spec")
-    p.add_argument("--checkpoint-every", type=int)
+    p.add_argument("--checkpoint-every", type=int, metavar="K",
+                   help="write the resumable checkpoint every K steps (TrainConfig default 100)")
     p.add_argument("--workers", type=int, help="data-loading worker processes")
     p.add_argument("--no-augment", dest="augment", action="store_false", default=None, help="crop only")
     p.add_argument("--spatial-scale", type=float, nargs=2, metavar=("LO", "HI"),
@@ -50,13 +59,50 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="probability of the dim-light and sensor-noise augmentation (default 0)")
     p.add_argument("--noise-sources", choices=NOISE_SOURCES,
                    help="sources the noise reaches: all (default), or air (not the generated under-water ones)")
-    p.add_argument("--freeze-bn", dest="freeze_bn", action="store_true", default=None)
+    p.add_argument("--freeze-bn", dest="freeze_bn", action="store_true", default=None,
+                   help="keep BatchNorm statistics fixed (eval mode) while training, as RAFT-Stereo fine-tunes")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
 
 
+class _StderrAboveProgressBar(logging.Handler):
+    """Writes each record's message to the current ``sys.stderr`` through ``tqdm.write``, which moves the
+    training progress bar out of the way and redraws it below."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:  # logging's contract: a handler reports its own failures
+            self.handleError(record)
+
+
+@contextlib.contextmanager
+def _show_training_log() -> Iterator[None]:
+    """While ``mipnet train`` runs, the ``mipnet`` loggers' INFO and above (validation tables, a stop on a
+    signal, skipped checkpoints) go to stderr as their bare messages, as the command has always shown them."""
+    logger = logging.getLogger("mipnet")
+    handler = _StderrAboveProgressBar(logging.INFO)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    level = logger.level
+    logger.addHandler(handler)
+    if level == logging.NOTSET or level > logging.INFO:
+        logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+
+
 def run(args: argparse.Namespace) -> int:
+    with _show_training_log():
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from ..errors import ArgumentError
     from ..training.fit import fit
 

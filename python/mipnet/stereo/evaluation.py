@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import ShapeError
 from .metrics import MetricAccumulator, aggregate
 
-__all__ = ["evaluate_method", "sgbm_rows", "mipnet_rows", "result_row", "format_table", "COVERAGES", "DEFAULT_COLUMNS"]
+__all__ = ["evaluate_method", "evaluate_coverages", "sgbm_rows", "mipnet_rows", "result_row", "format_table", "COVERAGES", "DEFAULT_COLUMNS"]
 
 COVERAGES = ("full", "covered")
 DEFAULT_COLUMNS = ("method", "epe", "bad1", "bad2", "bad3", "d1", "a90", "rms", "coverage", "images")
@@ -44,10 +44,12 @@ def _predict(predict_fn: Callable, left, right) -> tuple[np.ndarray, np.ndarray]
     return disparity, pred_valid
 
 
-def _evaluate(pairs: Iterable[dict], predict_fn: Callable, coverages: Sequence[str],
+def evaluate_coverages(pairs: Iterable[dict], predict_fn: Callable, coverages: Sequence[str],
               on_error: Callable[[object, Exception], None] | None = None) -> dict:
-    """One pass over ``pairs``, scoring every requested coverage convention. A pair whose prediction
-    raises is skipped after ``on_error(name, error)`` returns (without ``on_error`` the error propagates)."""
+    """One pass over ``pairs``, scoring every requested coverage convention (``"full"``, ``"covered"``,
+    ``"dense"``): coverage -> ``per_image`` rows, their ``mean``, the ``pooled`` metrics and the ``coverage``
+    percentage. A pair whose prediction raises is skipped after ``on_error(name, error)`` returns (without
+    ``on_error`` the error propagates)."""
     unknown = set(coverages) - set(COVERAGES) - {"dense"}
     if unknown:
         raise ValueError(f"unknown coverage {sorted(unknown)}; expected {COVERAGES}")
@@ -114,7 +116,7 @@ def evaluate_method(pairs: Iterable[dict], predict_fn: Callable, coverage: str =
     ------
     per pair: left, right (H, W, 3); disparity, valid and the prediction (H, W).
     """
-    return _evaluate(pairs, predict_fn, (coverage,), on_error)[coverage]
+    return evaluate_coverages(pairs, predict_fn, (coverage,), on_error)[coverage]
 
 
 def result_row(method: str, result: dict, aggregation: str = "mean") -> dict:
@@ -157,16 +159,16 @@ def mipnet_rows(pairs: Iterable[dict], predict_fn: Callable, method: str = "MIPN
         ``[dense row]`` or ``[dense row, confident row]``.
     """
     if min_confidence is None:
-        return [result_row(method, _evaluate(pairs, predict_fn, ("dense",), on_error)["dense"], aggregation)]
+        return [result_row(method, evaluate_coverages(pairs, predict_fn, ("dense",), on_error)["dense"], aggregation)]
     from .confidence import match_confidence
 
     def predict_with_confidence(left, right):
         disparity = predict_fn(left, right)
         return disparity, match_confidence(left, right, disparity) >= min_confidence
 
-    results = _evaluate(pairs, predict_with_confidence, ("dense", "covered"), on_error)
+    results = evaluate_coverages(pairs, predict_with_confidence, ("dense", "covered"), on_error)
     dense = result_row(method, results["dense"], aggregation)
-    dense["coverage"] = 100.0  # _evaluate counted the confident pixels; the dense row answers at every pixel
+    dense["coverage"] = 100.0  # evaluate_coverages counted the confident pixels; the dense row answers at every pixel
     return [dense, result_row(f"{method} (confidence >= {min_confidence:g})", results["covered"], aggregation)]
 
 
@@ -199,7 +201,7 @@ def sgbm_rows(pairs: Iterable[dict], method: str = "SGBM", aggregation: str = "m
     """
     from .baselines import sgbm
 
-    results = _evaluate(pairs, lambda left, right: sgbm(left, right, **sgbm_options), COVERAGES, on_error)
+    results = evaluate_coverages(pairs, lambda left, right: sgbm(left, right, **sgbm_options), COVERAGES, on_error)
     return [
         result_row(f"{method} (full coverage)", results["full"], aggregation),
         result_row(f"{method} (covered)", results["covered"], aggregation),
