@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from helpers import require
 from mipnet.stereo.geometry import baseline_in_metres, depth_to_points, disparity_to_depth
 from mipnet.stereo.io import read_calib, write_ply
 from mipnet.stereo.viz import COLORMAPS, colorize, colormap_lut
@@ -105,12 +104,6 @@ def test_turbo_lut_shape_and_landmarks():
     assert lut[128, 1] > 200  # bright green-yellow middle
     assert lut[255, 0] > 3 * lut[255, 2]  # dark red end
     assert not lut.flags.writeable
-
-
-def test_turbo_close_to_reference_when_matplotlib_present():
-    matplotlib = require("matplotlib")
-    reference = matplotlib.colormaps["turbo"](np.linspace(0, 1, 256))[:, :3] * 255
-    assert np.abs(colormap_lut("turbo") - reference).mean() < 10  # polynomial approximation
 
 
 def test_unknown_colormap_raises():

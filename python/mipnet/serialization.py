@@ -1,25 +1,30 @@
-"""safetensors files in pure numpy (no pickle, no extra dependency).
+"""safetensors files, through the ``safetensors`` package's numpy API.
 
-Format: 8-byte little-endian header length, a JSON header mapping each name to
-``{"dtype", "shape", "data_offsets": [begin, end]}`` (offsets into the byte buffer that follows)
-plus an optional ``"__metadata__"`` dict of strings, then the raw little-endian tensor bytes.
+Writing serialises with :func:`safetensors.numpy.save` and puts the bytes in place atomically
+(:func:`mipnet.utils.files.atomic_write`); reading goes through :func:`safetensors.safe_open`, which
+checks the whole header against the file (every byte range inside the buffer and exactly
+``prod(shape) * itemsize`` long, the ranges covering it without gaps, string-only metadata, a
+header of at most 100 MB) before a tensor is read. A corrupt or truncated file raises
+:class:`mipnet.errors.FormatError` naming it and what its header claims.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import os
 import struct
 from typing import Any, Mapping
 
 import numpy as np
+from safetensors import SafetensorError, safe_open
+from safetensors.numpy import save as _serialize
 
 from .utils.files import atomic_write
 from .errors import ArgumentError, FormatError
 
 __all__ = ["save_safetensors", "load_safetensors", "average_safetensors"]
 
+# The dtypes mipnet writes and reads (the format has more: BF16, F8, unsigned wider than 8 bits...).
 _DTYPES = {"F32": np.float32, "F64": np.float64, "F16": np.float16, "I64": np.int64, "I32": np.int32,
            "I16": np.int16, "I8": np.int8, "U8": np.uint8, "BOOL": np.bool_}
 _NAMES = {np.dtype(v): k for k, v in _DTYPES.items()}
@@ -27,25 +32,21 @@ _NAMES = {np.dtype(v): k for k, v in _DTYPES.items()}
 
 def save_safetensors(path: str | os.PathLike, tensors: Mapping[str, Any], metadata: Mapping[str, str] | None = None) -> None:
     """Writes named arrays (and string metadata) to ``path`` atomically."""
-    header: dict[str, Any] = {}
-    blobs, offset = [], 0
+    arrays = {}
     for name, value in tensors.items():
         a = np.asarray(value.numpy() if hasattr(value, "numpy") else value)
-        if a.dtype not in _NAMES:
+        native = a.dtype.newbyteorder("=")
+        if native not in _NAMES:
             raise FormatError(f"save_safetensors: {name} has unsupported dtype {a.dtype}")
-        raw = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes(order="C")
-        header[name] = {"dtype": _NAMES[a.dtype], "shape": list(a.shape), "data_offsets": [offset, offset + len(raw)]}
-        blobs.append(raw)
-        offset += len(raw)
-    if metadata:
-        header["__metadata__"] = {str(k): str(v) for k, v in metadata.items()}
-    head = json.dumps(header, separators=(",", ":")).encode()
-    head += b" " * (-len(head) % 8)  # the data section starts 8-byte aligned
+        # safetensors reads each array's buffer as it is: C order, native (it swaps big-endian ones itself)
+        arrays[name] = a if a.flags.c_contiguous else a.copy(order="C")  # (np.ascontiguousarray makes 0-d 1-d)
+    meta = {str(k): str(v) for k, v in metadata.items()} if metadata else None
+    try:
+        data = _serialize(arrays, metadata=meta)
+    except SafetensorError as e:
+        raise FormatError(f"save_safetensors: {os.fspath(path)}: {e}") from None
     with atomic_write(path) as f:
-        f.write(struct.pack("<Q", len(head)))
-        f.write(head)
-        for raw in blobs:
-            f.write(raw)
+        f.write(data)
 
 
 def average_safetensors(paths: list[str | os.PathLike], weights: list[float] | None = None) -> dict[str, np.ndarray]:
@@ -78,61 +79,54 @@ def average_safetensors(paths: list[str | os.PathLike], weights: list[float] | N
             for name, value in first.items()}
 
 
-#: The largest JSON header accepted (the reference implementation's limit, 100 MB).
+#: The largest JSON header accepted (the safetensors package's limit, 100 MB).
 MAX_HEADER_BYTES = 100_000_000
 
 
 def load_safetensors(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """(name -> array, metadata) from a safetensors file.
 
-    Every header field is checked before any tensor is allocated: each tensor's byte range must lie
-    in the file and hold exactly ``prod(shape) * itemsize`` bytes, so a header claiming more data
-    than the file has is rejected. A corrupt or truncated file raises ``FormatError`` naming it.
+    The ``safetensors`` package checks every header field before any tensor is read: each tensor's byte
+    range must lie in the file and hold exactly ``prod(shape) * itemsize`` bytes, so a header claiming more
+    data than the file has is rejected. A corrupt or truncated file, or a tensor of a dtype mipnet does not
+    read (see ``_DTYPES``), raises ``FormatError`` naming the file; a file that cannot be opened raises the
+    usual ``OSError``.
     """
-    with open(path, "rb") as f:
-        data = f.read()
+    name = os.fspath(path)
+    with open(name, "rb"):  # FileNotFoundError, IsADirectoryError, PermissionError as for any file
+        pass
     try:
-        header, body = _parse_header(data)
-        meta = header.pop("__metadata__", None) or {}
-        if not isinstance(meta, dict) or not all(isinstance(v, str) for v in meta.values()):
-            raise ValueError("__metadata__ must map names to strings")
-        return {name: _tensor(name, info, body) for name, info in header.items()}, dict(meta)
-    except (ValueError, RecursionError) as e:  # json's errors (incl. UnicodeDecodeError) are ValueErrors
-        raise FormatError(f"{os.fspath(path)}: not a valid safetensors file ({e})") from None
+        with safe_open(name, framework="np") as f:
+            keys = f.keys()
+            for key in keys:
+                kind = f.get_slice(key).get_dtype()
+                if kind not in _DTYPES:
+                    raise FormatError(f"{name}: not a valid safetensors file (tensor {key}: unsupported dtype "
+                                      f"{kind!r}; supported: {', '.join(_DTYPES)})")
+            meta = f.metadata() or {}
+            tensors = {key: f.get_tensor(key) for key in keys}
+    except SafetensorError as e:
+        raise FormatError(f"{name}: not a valid safetensors file ({e}{_claims(name)})") from None
+    return tensors, dict(meta)
 
 
-def _parse_header(data: bytes) -> tuple[dict, memoryview]:
-    """The JSON header and the byte buffer after it; ValueError if they do not fit the file."""
-    if len(data) < 8:
-        raise ValueError(f"file of {len(data)} bytes, shorter than the 8-byte header length")
-    (n,) = struct.unpack("<Q", data[:8])
-    if n > min(len(data) - 8, MAX_HEADER_BYTES):
-        raise ValueError(f"header length {n} exceeds the file size {len(data)} (or the limit {MAX_HEADER_BYTES})")
-    header = json.loads(data[8:8 + n])
+def _claims(path: str) -> str:
+    """What the header of a file the safetensors package refused claims (the header length, each tensor's
+    dtype, shape and byte range, the data bytes there are), for the error message; "" if it cannot be told."""
+    try:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size < 8:
+                return f": a file of {size} bytes, shorter than the 8-byte header length"
+            (n,) = struct.unpack("<Q", f.read(8))
+            if n > min(size - 8, MAX_HEADER_BYTES):
+                return f": header length {n} exceeds the file size {size} (or the limit {MAX_HEADER_BYTES})"
+            header = json.loads(f.read(n))
+    except (OSError, ValueError, RecursionError):  # json's errors (incl. UnicodeDecodeError) are ValueErrors
+        return ""
     if not isinstance(header, dict):
-        raise ValueError(f"the header is a JSON {type(header).__name__}, not an object")
-    return header, memoryview(data)[8 + n:]
-
-
-def _is_index(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
-
-
-def _tensor(name: str, info: Any, body: memoryview) -> np.ndarray:
-    """One tensor of the header, checked against the byte buffer before it is read."""
-    if not isinstance(info, dict) or not {"dtype", "shape", "data_offsets"} <= info.keys():
-        raise ValueError(f"tensor {name}: entry must have dtype, shape and data_offsets")
-    kind, shape, offsets = info["dtype"], info["shape"], info["data_offsets"]
-    if not isinstance(kind, str) or kind not in _DTYPES:
-        raise ValueError(f"tensor {name}: unsupported dtype {str(kind)[:20]!r} (supported: {', '.join(_DTYPES)})")
-    if not isinstance(shape, list) or not all(_is_index(d) for d in shape):
-        raise ValueError(f"tensor {name}: shape must be a list of non-negative integers, got {str(shape)[:60]}")
-    if not isinstance(offsets, list) or len(offsets) != 2 or not all(_is_index(o) for o in offsets):
-        raise ValueError(f"tensor {name}: data_offsets must be [begin, end], got {str(offsets)[:60]}")
-    dtype = np.dtype(_DTYPES[kind]).newbyteorder("<")
-    begin, end = offsets
-    nbytes = math.prod(shape) * dtype.itemsize
-    if not begin <= end <= len(body) or end - begin != nbytes:
-        raise ValueError(f"tensor {name}: shape {shape} of {kind} needs {nbytes} bytes but data_offsets "
-                         f"{begin}..{end} span {end - begin} of a {len(body)}-byte buffer")
-    return np.frombuffer(body[begin:end], dtype=dtype).reshape(shape).astype(dtype.newbyteorder("="))
+        return ""
+    entries = [f"{key} {info.get('dtype')!s:.20} shape {info.get('shape')!s:.60} at {info.get('data_offsets')!s:.60}"
+               for key, info in header.items() if key != "__metadata__" and isinstance(info, dict)]
+    more = f" and {len(entries) - 3} more" if len(entries) > 3 else ""
+    return f"; the header claims {'; '.join(entries[:3]) or 'no tensor'}{more} in {size - 8 - n} data bytes"

@@ -3,8 +3,8 @@
 :func:`estimate` counts, from the model's tensor sizes, the activations a pass keeps alive at its
 peak: for a training step every activation the forward saves for backward, plus the parameter
 gradients; for an eval pass the largest set of tensors alive at one moment. :func:`check` compares
-the estimate with the memory the process may still use (``MemAvailable`` of ``/proc/meminfo``, the
-cgroup limit, ``MIPNET_MEMORY_LIMIT``) and raises :class:`mipnet.errors.MemoryLimitError` instead of
+the estimate with the memory the process may still use (the system's available memory as ``psutil``
+reports it, ``MemAvailable`` on Linux; the cgroup limit; ``MIPNET_MEMORY_LIMIT``) and raises :class:`mipnet.errors.MemoryLimitError` instead of
 letting the kernel kill the process. ``MIPNET_MEMORY_CHECK=0`` turns the check off.
 
 The whole model of the network's memory is :func:`activation_bytes`: update it when an op starts to
@@ -257,13 +257,16 @@ def _read(path: str) -> str | None:
 
 
 def _resident_bytes() -> int:
-    status = _read("/proc/self/status") or ""
-    match = re.search(r"^VmRSS:\s+(\d+) kB", status, re.M)
-    return int(match.group(1)) * 1024 if match else 0
+    """This process's resident set size (``VmRSS`` on Linux)."""
+    import psutil
+
+    return int(psutil.Process().memory_info().rss)
 
 
 def _cgroup_room() -> tuple[int, str] | None:
-    """(limit - usage, which limit) of this process's memory cgroup (v2, else v1), if it has a limit."""
+    """(limit - usage, which limit) of this process's memory cgroup (v2, else v1), if it has a limit.
+
+    Read from the cgroup files by hand: psutil reports the host's memory, not a container's limit."""
     membership = _read("/proc/self/cgroup") or ""
     v2 = re.search(r"^0::(.*)$", membership, re.M)
     if v2:
@@ -280,13 +283,16 @@ def _cgroup_room() -> tuple[int, str] | None:
 
 def available_memory() -> tuple[int, str] | None:
     """(bytes this process may still allocate, where the bound comes from), or None where it cannot be
-    told (no ``/proc/meminfo``): the least of ``MemAvailable``, the cgroup's room and
-    ``MIPNET_MEMORY_LIMIT`` (a cap on this process's resident memory, e.g. ``8G``) minus what it uses."""
+    told: the least of the system's available memory (``psutil.virtual_memory().available``, which is
+    ``MemAvailable`` of ``/proc/meminfo`` on Linux), the cgroup's room and ``MIPNET_MEMORY_LIMIT`` (a cap
+    on this process's resident memory, e.g. ``8G``) minus what it uses."""
+    import psutil
+
     bounds = []
-    meminfo = _read("/proc/meminfo")
-    match = re.search(r"^MemAvailable:\s+(\d+) kB", meminfo or "", re.M)
-    if match:
-        bounds.append((int(match.group(1)) * 1024, "MemAvailable in /proc/meminfo"))
+    try:
+        bounds.append((int(psutil.virtual_memory().available), "available system memory"))
+    except (OSError, psutil.Error):  # no /proc mounted
+        pass
     cgroup = _cgroup_room()
     if cgroup:
         bounds.append(cgroup)
@@ -340,7 +346,7 @@ else:
     gt = np.full((n, 1, h, w), 4.0, np.float32)
     mipnet.model.losses.sequence_loss(model.train()(left, right, iters=(n16, n4)), gt, gt > 0).backward()
 # VmHWM, the peak of this process's own memory map: ru_maxrss would also count the parent's resident
-# memory at fork time, which Linux carries over exec
+# memory at fork time, which Linux carries over exec (psutil has no peak resident size on Linux)
 hwm = next(line for line in open("/proc/self/status") if line.startswith("VmHWM:"))
 print(json.dumps({"peak": int(hwm.split()[1]) * 1024}))
 """

@@ -1,4 +1,4 @@
-"""Optimisers of MIPNet's recipe (spec c.2), at torch's import paths: ``mipnet.optim.AdamW``, ``SGD``,
+"""Optimisers of MIPNet's recipe (architecture.md §3.2), at torch's import paths: ``mipnet.optim.AdamW``, ``SGD``,
 ``mipnet.optim.lr_scheduler.OneCycleLR`` (also here), and ``clip_grad_norm_`` (``mipnet.nn.utils``; also here).
 
 Updates replace ``p.data`` between steps (never while a kernel reads it), with torch's formulas.
@@ -12,6 +12,13 @@ from typing import Any, Iterable
 import numpy as np
 
 from ..errors import ArgumentError
+
+__all__ = ["Optimizer", "SGD", "AdamW", "OneCycleLR", "lr_scheduler", "clip_grad_norm_"]
+
+
+def __dir__() -> list[str]:
+    """The API only (``dir(mipnet.optim)``, tab completion): not the modules this one imports."""
+    return sorted(__all__)
 
 
 class Optimizer:
@@ -89,5 +96,3 @@ class AdamW(Optimizer):
 from . import lr_scheduler  # noqa: E402 - the schedule module needs Optimizer defined
 from .lr_scheduler import OneCycleLR  # noqa: E402
 from ..nn.utils import clip_grad_norm_  # noqa: E402
-
-__all__ = ["Optimizer", "SGD", "AdamW", "OneCycleLR", "lr_scheduler", "clip_grad_norm_"]

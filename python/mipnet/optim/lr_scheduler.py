@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 from ..errors import ArgumentError
+from . import Optimizer  # defined before mipnet.optim imports this module
 
 __all__ = ["OneCycleLR"]
+
+
+def __dir__() -> list[str]:
+    """The API only (``dir(mipnet.optim.lr_scheduler)``, tab completion)."""
+    return sorted(__all__)
 
 
 class OneCycleLR:

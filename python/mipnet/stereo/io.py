@@ -565,7 +565,8 @@ def read_npy(path) -> np.ndarray:
 
 
 def write_ply(path, points, colors=None) -> None:
-    """Write a point cloud as binary little-endian PLY (x, y, z float32; red, green, blue uint8).
+    """Write a point cloud as binary little-endian PLY (x, y, z float32; red, green, blue uint8), with
+    the ``plyfile`` package.
 
     Parameters
     ----------
@@ -580,6 +581,8 @@ def write_ply(path, points, colors=None) -> None:
     ------
     points: (N, 3); colors: (N, 3).
     """
+    from plyfile import PlyData, PlyElement
+
     xyz = np.asarray(points, dtype=np.float32)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"write_ply: points must have shape (N, 3), got {xyz.shape}")
@@ -595,12 +598,6 @@ def write_ply(path, points, colors=None) -> None:
     if colors is not None:
         for axis, name in enumerate(("red", "green", "blue")):
             vertices[name] = rgb[:, axis]
-    properties = "".join(
-        f"property {'float' if kind == '<f4' else 'uchar'} {name}\n" for name, kind in fields
-    )
-    header = (
-        f"ply\nformat binary_little_endian 1.0\nelement vertex {len(xyz)}\n{properties}end_header\n"
-    )
+    ply = PlyData([PlyElement.describe(vertices, "vertex")], text=False, byte_order="<")
     with atomic_write(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(vertices.tobytes())
+        ply.write(f)

@@ -1,28 +1,28 @@
-"""Colour maps for disparity, depth and error maps, without matplotlib."""
+"""Colour maps for disparity, depth and error maps, without matplotlib.
+
+Turbo is Google's exact 256-entry table (Anton Mikhailov, "Turbo, An Improved Rainbow Colormap for
+Visualization", Google AI blog, 2019; Apache License 2.0), shipped as ``assets/turbo_colormap.npy``
+(uint8, 256x3). It was generated once from matplotlib's copy of the table,
+``np.rint(np.asarray(matplotlib._cm_listed._turbo_data) * 255).astype(np.uint8)``, so it does not depend on
+matplotlib or OpenCV being installed. Jet and gray are computed.
+"""
 
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 
 import numpy as np
 
 __all__ = ["colorize", "colormap_lut", "COLORMAPS"]
 
-# Polynomial approximation of Google's Turbo colour map (Anton Mikhailov, 2019, Apache-2.0 gist):
-# channel(x) = sum_k c_k x^k for k = 0..5, x in [0, 1]. It stays within ~6/255 (mean) of the
-# reference Turbo table, with its largest deviations (up to ~30/255) at the two dark ends.
-_TURBO_POLY = np.array(
-    [
-        [0.13572138, 4.61539260, -42.66032258, 132.13108234, -152.94239396, 59.28637943],
-        [0.09140261, 2.19418839, 4.84296658, -14.18503333, 4.27729857, 2.82956604],
-        [0.10667330, 12.64194608, -60.58204836, 110.36276771, -89.90310912, 27.34824973],
-    ]
-)
+_TURBO_PATH = Path(__file__).resolve().parents[1] / "assets" / "turbo_colormap.npy"
 
 
 def _turbo(x: np.ndarray) -> np.ndarray:
-    powers = x[:, None] ** np.arange(6)[None, :]
-    return powers @ _TURBO_POLY.T
+    # the table's entry i is the colour at i / 255: x = linspace(0, 1, 256) reads every entry once
+    table = np.load(_TURBO_PATH, allow_pickle=False).astype(np.float64) / 255.0
+    return table[np.rint(x * 255).astype(np.intp)]
 
 
 def _jet(x: np.ndarray) -> np.ndarray:

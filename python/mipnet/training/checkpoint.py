@@ -14,9 +14,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 import re
-import sys
 from typing import Mapping
 
 import numpy as np
@@ -27,6 +27,8 @@ from ..serialization import load_safetensors, save_safetensors
 KEEP = 2
 FORMAT = "mipnet-checkpoint-1"
 _NAME = re.compile(r"^ckpt-(\d{8})\.safetensors$")
+
+logger = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -131,7 +133,7 @@ def load_latest_checkpoint(run_dir: str) -> TrainState:
             state = read_checkpoint(path)
         except FormatError as e:
             errors.append(str(e))
-            print(f"mipnet train: warning: skipping {e}", file=sys.stderr)
+            logger.warning("mipnet train: warning: skipping %s", e)
             continue
         return state
     raise FormatError(f"{run_dir}: every checkpoint is unreadable: " + "; ".join(errors))

@@ -1,4 +1,4 @@
-"""``fit``: the training loop behind ``mipnet train`` (spec c.1–c.3), with exact resume.
+"""``fit``: the training loop behind ``mipnet train`` (architecture.md §3.1–§3.3), with exact resume.
 
 A run lives in one folder::
 
@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import logging
 import math
 import os
 import signal
@@ -46,6 +47,10 @@ from .validation import format_validation, mean_epe, validate_model, validate_sg
 # Generated training pairs are drawn this much larger than the crop, so scale augmentation can
 # shrink them (2**-0.2 = 0.87) and crops land at varied positions.
 GENERATED_MARGIN = 1.25
+
+# Validation tables go out at INFO, a stop on a signal at WARNING; `mipnet train` shows both on stderr
+# (mipnet.cli.train), from Python configure logging (e.g. logging.basicConfig(level=logging.INFO)).
+logger = logging.getLogger(__name__)
 
 
 def _generated_size(crop: tuple[int, int]) -> tuple[int, int]:
@@ -101,7 +106,7 @@ class _StopRequest:
         if self.signal is not None:  # a second signal: stop now
             raise KeyboardInterrupt
         self.signal = signum
-        print(f"\nmipnet train: {signal.Signals(signum).name} received: checkpointing after this step", file=sys.stderr)
+        logger.warning("mipnet train: %s received: checkpointing after this step", signal.Signals(signum).name)
 
 
 def threading_is_main() -> bool:
@@ -151,6 +156,9 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
     overrides : dict, optional
         With ``resume``: settings that may change between sessions without changing results
         (:data:`mipnet.training.config.RESUMABLE_OVERRIDES`).
+
+    Each validation's table is logged at INFO on the ``mipnet.training.fit`` logger, a stop on SIGINT or
+    SIGTERM at WARNING (``mipnet train`` shows both on stderr).
     """
     os.makedirs(out, exist_ok=True)
     state: TrainState | None = None
@@ -219,7 +227,7 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
                 log.append({"step": step, "val_sgbm": reference})
             sgbm_logged = True
         log.append({"step": step, "val": table})
-        print("\n" + format_validation(step, table, reference), file=sys.stderr)
+        logger.info("%s", format_validation(step, table, reference))
         score = mean_epe(table)
         if score < best:
             best = score
@@ -268,6 +276,6 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
                 validate()
     checkpoint()
     if stop.signal is not None:
-        print(f"mipnet train: stopped at step {step}; continue with: mipnet train --resume {out}", file=sys.stderr)
+        logger.warning("mipnet train: stopped at step %d; continue with: mipnet train --resume %s", step, out)
     return records
 
