@@ -100,3 +100,4 @@ def sample_right(right, disparity):
     t = np.clip(xr - x0, 0, 1)[..., None]
     r = right.astype(np.float64)
     return (1 - t) * r[y, x0] + t * r[y, x0 + 1], (xr >= 0) & (xr <= width - 1)
+

@@ -1,4 +1,4 @@
-"""Training augmentations of spec c.3 (mipnet.training.augment): each test checks what a step must
+"""Training augmentations of architecture.md §3.3 (mipnet.training.augment): each test checks what a step must
 preserve — stereo geometry, the disparity scale, the valid mask, the left image, value ranges —
 and that every draw comes from the generator it is given."""
 

@@ -1,4 +1,4 @@
-"""IP and RLS correlations against the spec's PyTorch formulations (a.6, a.7), forward and backward."""
+"""IP and RLS correlations against their PyTorch formulations (architecture.md §2.5, §2.6), forward and backward."""
 
 import numpy as np
 import pytest
@@ -19,7 +19,7 @@ def ip_torch(fl, stack, groups=2):
 
 
 def rls_torch(fl, warped, rx=3, ry=1):
-    """The spec's literal pad/slice/mean loop (a.7), as the reference model computes it."""
+    """The literal pad/slice/mean loop (architecture.md §2.6), as the reference model computes it."""
     return reference_rls(fl, warped, rx, ry)
 
 

@@ -1,4 +1,4 @@
-"""The fused GRU gates against torch's unfused expressions (spec a.8), forward and backward."""
+"""The fused GRU gates against torch's unfused expressions (architecture.md §2.7), forward and backward."""
 
 import numpy as np
 import pytest

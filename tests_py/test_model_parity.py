@@ -1,11 +1,11 @@
 """Whole-network parity: mipnet's MIPNet against the independent PyTorch reference
-(tests_py/reference), same weights, same ``disp_init`` (spec g.1: gamma draws are engine-specific).
+(tests_py/reference), same weights, same ``disp_init`` (architecture.md §2.4: gamma draws are engine-specific).
 
 - eval, float32: final disparity within 1e-3 px (max abs), at 64x96 and at a size needing padding;
 - training, float64: all 24 predictions, the sequence loss, every parameter gradient (relative error
   of the norm of the difference <= 1e-6; absolute tolerance for the biases whose gradient is zero in
-  exact arithmetic, spec g.7) and the BatchNorm running statistics after the step;
-- training, float32 with BatchNorm frozen: update-block gradients within 1e-3 relative (spec g.9).
+  exact arithmetic, architecture.md §3.6) and the BatchNorm running statistics after the step;
+- training, float32 with BatchNorm frozen: update-block gradients within 1e-3 relative (architecture.md §3.6).
 """
 
 import numpy as np
@@ -45,7 +45,7 @@ def stereo_batch(n, h, w, seed=0):
 
 
 def disp_init_for(n, h, w, seed=1):
-    # positive 1/16-level disparity for the padded size (spec g.1)
+    # positive 1/16-level disparity for the padded size (architecture.md §2.4)
     hp, wp = -(-h // 16) * 16, -(-w // 16) * 16
     return np.random.default_rng(seed).uniform(0.2, 2.5, size=(n, 1, hp // 16, wp // 16))
 

@@ -1,33 +1,16 @@
 """MIPNet's parameters, state dict, config and input handling (no PyTorch needed)."""
 
-import os
-import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import mipnet
 from helpers import require
+from key_table import canonical_key_table
 
-SPEC = Path(__file__).resolve().parents[1].parent / "shared" / "spec" / "mipnet-architecture.md"
-
-
-def spec_key_table():
-    """The (key, shape) rows of the spec's section f.2 table."""
-    if not SPEC.exists():
-        if os.environ.get("CI"):
-            raise FileNotFoundError(SPEC)
-        pytest.skip("spec not found beside the repository")
-    text = SPEC.read_text()
-    block = text[text.index("### f.2"):text.index("### f.3")]
-    rows = re.findall(r"^(\S+)\s+\[([\d, ]*)\]$", block, flags=re.M)
-    return [(k, tuple(int(v) for v in s.split(",") if v.strip())) for k, s in rows]
-
-
-def test_state_dict_keys_order_and_shapes_equal_spec_table():
+def test_state_dict_keys_order_and_shapes_equal_the_canonical_table():
     sd = mipnet.MIPNet().state_dict()
-    assert [(k, tuple(v.shape)) for k, v in sd.items()] == spec_key_table()
+    assert [(k, tuple(v.shape)) for k, v in sd.items()] == canonical_key_table()
 
 
 @pytest.mark.parametrize("config,params,keys", [

@@ -28,7 +28,7 @@ def test_pad_constant_value_and_unbatched_input_match_torch():
 
 
 def test_pad_ip_seed_shifts_like_the_spec():
-    # spec a.6: replicate pad by r = 1, then one h x w window per diagonal seed
+    # architecture.md §2.5: replicate pad by r = 1, then one h x w window per diagonal seed
     def seeds(fn_pad, x):
         p = fn_pad(x)
         h, w = x.shape[-2:]

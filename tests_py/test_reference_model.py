@@ -1,11 +1,10 @@
 """Tests of the independent PyTorch reference (tests_py/reference) against the architecture spec.
 
-These tests never import `mipnet`: they check the reference itself (state_dict names of spec f.2,
-parameter counts of f.4, forward/training behaviour of a.10 and g, loss of c.1/g.5).
+These tests never import `mipnet`: they check the reference itself (state_dict names of architecture.md §2.10,
+parameter counts of architecture.md §2.10, forward/training behaviour of §2.9, loss of §3.1).
 """
 
 import os
-import re
 import sys
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from key_table import canonical_key_table  # noqa: E402
 from reference import (  # noqa: E402
     MIPNetTorch,
     build_ip_stack,
@@ -32,20 +32,8 @@ from reference import (  # noqa: E402
 
 torch.set_num_threads(2)
 
-KEY_TABLE = Path(__file__).resolve().parent / "reference" / "state_dict_keys.txt"
 H, W = 64, 96
 BUFFER_SUFFIXES = ("running_mean", "running_var", "num_batches_tracked")
-
-
-def canonical_key_table():
-    """(key, shape) rows of the canonical key table (reference/state_dict_keys.txt), in order."""
-    rows = []
-    for line in KEY_TABLE.read_text(encoding="utf-8").splitlines():
-        match = re.fullmatch(r"\s*(\S+)\s+\[([0-9, ]*)\]\s*", line)
-        if match:
-            dims = [int(d) for d in match.group(2).replace(" ", "").split(",") if d]
-            rows.append((match.group(1), tuple(dims)))
-    return rows
 
 
 def state_rows(model):
@@ -66,7 +54,7 @@ def seeded_model(seed=0, **kwargs):
 
 
 # ------------------------------------------------------------------------------------------------
-# state_dict names, shapes and parameter counts (spec f.2 - f.4)
+# state_dict names, shapes and parameter counts (architecture.md §2.10)
 # ------------------------------------------------------------------------------------------------
 
 
@@ -98,7 +86,7 @@ def test_ablation_keys_and_parameter_counts(kwargs, n_keys, n_params):
         k for k, _ in rows if not k.endswith(BUFFER_SUFFIXES)
     ]
     full = canonical_key_table()
-    # f.3: every ablation keeps a subsequence of f.2 (names, order, shapes).
+    # every ablation keeps a subsequence of the canonical key table (names, order, shapes; architecture.md §2.10).
     it = iter(full)
     assert all(row in it for row in rows)
 
@@ -121,7 +109,7 @@ def test_backbone_kaiming_init_and_bn_defaults():
 
 
 # ------------------------------------------------------------------------------------------------
-# Primitive operations (spec a.4, a.6, a.7, a.9)
+# Primitive operations (architecture.md §2.3, §2.5, §2.6, §2.8)
 # ------------------------------------------------------------------------------------------------
 
 
@@ -183,7 +171,7 @@ def test_convex_upsample_neighbour_layout():
 
 
 # ------------------------------------------------------------------------------------------------
-# Forward pass (spec a.10, g.1 - g.3)
+# Forward pass (architecture.md §2.9, §2.4 - §2.8)
 # ------------------------------------------------------------------------------------------------
 
 
@@ -344,7 +332,7 @@ def test_float64_model_matches_float32():
 
 
 # ------------------------------------------------------------------------------------------------
-# Sequence loss (spec c.1, g.5)
+# Sequence loss (architecture.md §3.1)
 # ------------------------------------------------------------------------------------------------
 
 

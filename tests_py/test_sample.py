@@ -43,7 +43,7 @@ def test_grid_sample_on_pixel_centres_and_exact_borders_matches_torch(padding, a
 
 
 def _warp(ops, feat, flow):
-    """The spec's W(F, f) (a.4) written with either library's grid_sample."""
+    """The warp W(F, f) (architecture.md §2.3) written with either library's grid_sample."""
     n, _, h, w = flow.shape
     xs = np.arange(w, dtype=flow.dtype)[None, :] + flow[:, 0]
     ys = np.arange(h, dtype=flow.dtype)[:, None] + flow[:, 1]
@@ -102,7 +102,7 @@ def test_interpolate_bilinear_matches_torch(align, kw, dtype):
 
 
 def test_interpolate_spec_bilinear_up4_and_default_align():
-    # spec a.9: 4 * F.interpolate(f, size=(4h, 4w), mode='bilinear', align_corners=True)
+    # architecture.md §2.8: 4 * F.interpolate(f, size=(4h, 4w), mode='bilinear', align_corners=True)
     check_op([rand((1, 2, 6, 9))], lambda f: 4 * F.interpolate(f, size=(24, 36), mode="bilinear", align_corners=True),
              lambda f: 4 * M.interpolate(f, size=(24, 36), mode="bilinear", align_corners=True))
     check_op([rand((1, 2, 6, 9))], lambda f: F.interpolate(f, size=(5, 13), mode="bilinear"),

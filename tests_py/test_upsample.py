@@ -1,4 +1,4 @@
-"""Convex upsampling against RAFT's exact PyTorch code (spec a.9), forward and backward, and errors."""
+"""Convex upsampling against RAFT's exact PyTorch code (architecture.md §2.8), forward and backward, and errors."""
 
 import numpy as np
 import pytest

@@ -1,6 +1,6 @@
 """Reverse-mode autodiff: ``Function`` (a Rust kernel pair seen from Python) and the tape walk.
 
-Design (spec/style-anchors.md §3.1): Rust kernels are stateless ``*_fwd`` / ``*_bwd`` pairs; this
+Design (docs/architecture.md §4): Rust kernels are stateless ``*_fwd`` / ``*_bwd`` pairs; this
 module records which ``Function`` produced each ``Tensor`` and, on ``backward()``, visits the graph
 in reverse topological order (iterative DFS: a 12+12-iteration network is thousands of nodes deep).
 Gradients of broadcast inputs are summed back to the input's shape here, once, so no op's backward

@@ -1,6 +1,6 @@
 """Independent PyTorch reference implementation of MIPNet (ground truth for the parity tests).
 
-Built from torch.nn layers only, following `shared/spec/mipnet-architecture.md`. It never imports
+Built from torch.nn layers only, following docs/architecture.md. It never imports
 `mipnet`, so it can be used while the Rust engine is under construction.
 """
 

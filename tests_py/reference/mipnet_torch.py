@@ -1,10 +1,10 @@
 """PyTorch reference implementation of MIPNet (Leng et al., J. Mar. Sci. Eng. 2023, 11(5), 930).
 
-Written plainly from `shared/spec/mipnet-architecture.md`; section numbers in the docstrings refer to
-that spec. This module is the ground truth the Rust engine is compared against, so it uses the
-spec's PyTorch calls literally (grid_sample warp, replicate pad + slicing, RAFT convex upsampling).
+Written plainly from the network's description, docs/architecture.md; section numbers in the docstrings
+refer to it. This module is the ground truth the Rust engine is compared against, so it uses the plain
+PyTorch calls literally (grid_sample warp, replicate pad + slicing, RAFT convex upsampling).
 
-Conventions (spec section 0): left image is the reference; the network carries a 2-channel flow
+Conventions (architecture.md §1): left image is the reference; the network carries a 2-channel flow
 f = (f_x, f_y) in pixel units of the current level with f_x = -disparity and f_y = 0; outputs are
 positive disparity d = -f_x at full resolution.
 """
@@ -22,19 +22,19 @@ CONTEXT_DIM = 128
 FEATURE_DIM = 256
 UPSAMPLE_RATE = 4
 
-# IP seed offsets (ox, oy) in units of the radius r, stack order of spec a.6: centre, tl, tr, dl, dr.
+# IP seed offsets (ox, oy) in units of the radius r, stack order of architecture.md §2.5: centre, tl, tr, dl, dr.
 IP_SEED_OFFSETS: Tuple[Tuple[int, int], ...] = ((0, 0), (-1, -1), (1, -1), (-1, 1), (1, 1))
 IP_RADIUS = 1
 IP_GROUPS = 2
 
 
 # ------------------------------------------------------------------------------------------------
-# Primitive operations (spec a.4, a.6, a.7, a.9, b)
+# Primitive operations (architecture.md §2.3, §2.5, §2.6, §2.8, §4)
 # ------------------------------------------------------------------------------------------------
 
 
 def coords_grid(n: int, h: int, w: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    """Pixel coordinate grid (N,2,h,w): channel 0 = column x, channel 1 = row y (spec a.4, b.20)."""
+    """Pixel coordinate grid (N,2,h,w): channel 0 = column x, channel 1 = row y (architecture.md §2.3, §4)."""
     ys, xs = torch.meshgrid(
         torch.arange(h, dtype=dtype, device=device),
         torch.arange(w, dtype=dtype, device=device),
@@ -44,7 +44,7 @@ def coords_grid(n: int, h: int, w: int, dtype: torch.dtype, device: torch.device
 
 
 def warp(feat: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
-    """W(F, f): sample `feat` at p + f(p) with bilinear grid_sample, border padding (spec a.4, b.21-22)."""
+    """W(F, f): sample `feat` at p + f(p) with bilinear grid_sample, border padding (architecture.md §2.3, §4)."""
     n, _, h, w = flow.shape
     coords = coords_grid(n, h, w, flow.dtype, flow.device) + flow
     gx = 2 * coords[:, 0] / max(w - 1, 1) - 1
@@ -54,7 +54,7 @@ def warp(feat: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
 
 
 def build_ip_stack(fr: torch.Tensor, radius: int = IP_RADIUS) -> torch.Tensor:
-    """Static IP seed stack S = cat[S_0..S_4] (N,5C,h,w), S_s(y,x) = F_R(y+oy, x+ox) clamped (spec a.6).
+    """Static IP seed stack S = cat[S_0..S_4] (N,5C,h,w), S_s(y,x) = F_R(y+oy, x+ox) clamped (architecture.md §2.5).
 
     Built once per level: replicate pad by r on every side, then slice one h x w window per seed.
     """
@@ -69,7 +69,7 @@ def build_ip_stack(fr: torch.Tensor, radius: int = IP_RADIUS) -> torch.Tensor:
 
 
 def ip_correlation(fl: torch.Tensor, s_hat: torch.Tensor, groups: int = IP_GROUPS) -> torch.Tensor:
-    """IP correlation, semantic layout (spec a.6): C_IP[5*g + s] = mean_k F_L[g,k] * S_hat[s,g,k].
+    """IP correlation, semantic layout (architecture.md §2.5): C_IP[5*g + s] = mean_k F_L[g,k] * S_hat[s,g,k].
 
     `s_hat` is the warped seed stack (N,5C,h,w); the output has 5*groups channels.
     """
@@ -84,7 +84,7 @@ def ip_correlation(fl: torch.Tensor, s_hat: torch.Tensor, groups: int = IP_GROUP
 
 
 def rls_correlation(fl: torch.Tensor, wf: torch.Tensor, rx: int, ry: int) -> torch.Tensor:
-    """RLS correlation (spec a.7): C[(2ry+1)*i + j] = mean_c F_L * pad(Wf)[:, :, j:j+h, i:i+w].
+    """RLS correlation (architecture.md §2.6): C[(2ry+1)*i + j] = mean_c F_L * pad(Wf)[:, :, j:j+h, i:i+w].
 
     `wf` = W(F_R, f) is the warped right feature map; candidate (i, j) compares F_L(p) with
     Wf(p + (i - rx, j - ry)) (replicate-clamped). Loops are x outer, y inner.
@@ -99,7 +99,7 @@ def rls_correlation(fl: torch.Tensor, wf: torch.Tensor, rx: int, ry: int) -> tor
 
 
 def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, rate: int = UPSAMPLE_RATE) -> torch.Tensor:
-    """Convex x`rate` upsampling exactly as RAFT (spec a.9): (N,2,h,w) + (N,9*rate^2,h,w) -> (N,2,rh,rw)."""
+    """Convex x`rate` upsampling exactly as RAFT (architecture.md §2.8): (N,2,h,w) + (N,9*rate^2,h,w) -> (N,2,rh,rw)."""
     n, _, h, w = flow.shape
     # Mask channel k*rate^2 + i*rate + j -> (neighbour k, sub-row i, sub-column j).
     weights = torch.softmax(mask.view(n, 1, 9, rate, rate, h, w), dim=2)
@@ -112,7 +112,7 @@ def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, rate: int = UPSAMPLE
 
 
 def bilinear_up4(flow: torch.Tensor) -> torch.Tensor:
-    """Bilinear x4 of a flow field, values scaled by 4 (spec a.9, DIP `upflow4`)."""
+    """Bilinear x4 of a flow field, values scaled by 4 (architecture.md §2.8, DIP `upflow4`)."""
     _, _, h, w = flow.shape
     return 4 * F.interpolate(flow, size=(4 * h, 4 * w), mode="bilinear", align_corners=True)
 
@@ -125,7 +125,7 @@ def gamma_disp_init(
     generator: Optional[torch.Generator] = None,
     seed: Optional[int] = None,
 ) -> torch.Tensor:
-    """Full-resolution initial disparity d0 ~ Gamma(shape, scale) clamped to [0, max_disp] (spec a.5, g.1).
+    """Full-resolution initial disparity d0 ~ Gamma(shape, scale) clamped to [0, max_disp] (architecture.md §2.4).
 
     Drawn on the CPU in float32. Integer shape k: Erlang, d0 = -theta * sum_j ln U_j with
     U_j = 1 - torch.rand(shape, generator) in (0, 1] (U_1 drawn first). Non-integer shape:
@@ -152,17 +152,17 @@ def gamma_disp_init(
 
 
 def instance_norm(x: torch.Tensor) -> torch.Tensor:
-    """InstanceNorm2d without affine parameters or running stats, eps 1e-5 (spec a.3, b.8)."""
+    """InstanceNorm2d without affine parameters or running stats, eps 1e-5 (architecture.md §2.2, §4)."""
     return F.instance_norm(x, eps=1e-5)
 
 
 # ------------------------------------------------------------------------------------------------
-# Encoder (spec a.3, module tree f.1)
+# Encoder (architecture.md §2.2, module tree f.1)
 # ------------------------------------------------------------------------------------------------
 
 
 class MSCAMBranch(nn.Module):
-    """One MS-CAM branch: BN(conv2(ReLU(BN(conv1(z))))), 1x1 convs c -> c/4 -> c (spec a.3)."""
+    """One MS-CAM branch: BN(conv2(ReLU(BN(conv1(z))))), 1x1 convs c -> c/4 -> c (architecture.md §2.2)."""
 
     def __init__(self, channels: int, reduction: int = 4):
         super().__init__()
@@ -177,12 +177,12 @@ class MSCAMBranch(nn.Module):
 
 
 class MSCAM(nn.Module):
-    """Multi-scale channel attention M(Z) = sigmoid(L(Z) + G(GAP(Z))) (spec a.3)."""
+    """Multi-scale channel attention M(Z) = sigmoid(L(Z) + G(GAP(Z))) (architecture.md §2.2)."""
 
     def __init__(self, channels: int):
         super().__init__()
         self.local = MSCAMBranch(channels)
-        # `global` is a Python keyword; the state_dict component stays "global" (spec f.1).
+        # `global` is a Python keyword; the state_dict component stays "global" (architecture.md §2.10).
         self.add_module("global", MSCAMBranch(channels))
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
@@ -192,7 +192,7 @@ class MSCAM(nn.Module):
 
 
 class IAFF(nn.Module):
-    """Iterative attentional feature fusion with two independent MS-CAMs (spec a.3, MXNet semantics)."""
+    """Iterative attentional feature fusion with two independent MS-CAMs (architecture.md §2.2, MXNet semantics)."""
 
     def __init__(self, channels: int):
         super().__init__()
@@ -207,7 +207,7 @@ class IAFF(nn.Module):
 
 
 class ResBlock(nn.Module):
-    """DIP ResidualBlock with instance norm, always-on 1x1 projection, iAFF fusion (spec a.3)."""
+    """DIP ResidualBlock with instance norm, always-on 1x1 projection, iAFF fusion (architecture.md §2.2)."""
 
     def __init__(self, cin: int, cout: int, stride: int, use_aff: bool):
         super().__init__()
@@ -229,7 +229,7 @@ class ResBlock(nn.Module):
 
 
 class Stem(nn.Module):
-    """Conv 7x7 s2 p3, 3 -> 64, then IN + ReLU (spec a.3)."""
+    """Conv 7x7 s2 p3, 3 -> 64, then IN + ReLU (architecture.md §2.2)."""
 
     def __init__(self):
         super().__init__()
@@ -240,7 +240,7 @@ class Stem(nn.Module):
 
 
 class Encoder(nn.Module):
-    """BasicEncoderQuarter + iAFF: (B,3,H,W) -> (B,256,H/4,W/4) (spec a.3).
+    """BasicEncoderQuarter + iAFF: (B,3,H,W) -> (B,256,H/4,W/4) (architecture.md §2.2).
 
     Backbone convs use kaiming_normal_(fan_out, relu) weights; iAFF convs keep PyTorch defaults.
     """
@@ -266,17 +266,17 @@ class Encoder(nn.Module):
 
 
 # ------------------------------------------------------------------------------------------------
-# Update blocks (spec a.8)
+# Update blocks (architecture.md §2.7)
 # ------------------------------------------------------------------------------------------------
 
 
 def conv(cin: int, cout: int, k, padding) -> nn.Conv2d:
-    """Conv2d with bias and PyTorch default init (update blocks, spec a.3/a.8)."""
+    """Conv2d with bias and PyTorch default init (update blocks, architecture.md §2.2/§2.7)."""
     return nn.Conv2d(cin, cout, kernel_size=k, padding=padding)
 
 
 class SmallMotionEncoder(nn.Module):
-    """U_IP motion encoder (DIP SmallMotionEncoder): corr 10 ch + flow 2 ch -> 96 ch (spec a.8)."""
+    """U_IP motion encoder (DIP SmallMotionEncoder): corr 10 ch + flow 2 ch -> 96 ch (architecture.md §2.7)."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -293,7 +293,7 @@ class SmallMotionEncoder(nn.Module):
 
 
 class BasicMotionEncoder(nn.Module):
-    """U_RLS motion encoder (DIP BasicMotionEncoder): corr 21 ch + flow 2 ch -> 128 ch (spec a.8)."""
+    """U_RLS motion encoder (DIP BasicMotionEncoder): corr 21 ch + flow 2 ch -> 128 ch (architecture.md §2.7)."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -311,7 +311,7 @@ class BasicMotionEncoder(nn.Module):
 
 
 class ConvGRU(nn.Module):
-    """3x3 ConvGRU (spec a.8, paper section 3.2.2)."""
+    """3x3 ConvGRU (architecture.md §2.7, paper section 3.2.2)."""
 
     def __init__(self, hidden: int, inp: int):
         super().__init__()
@@ -328,7 +328,7 @@ class ConvGRU(nn.Module):
 
 
 class SepConvGRU(nn.Module):
-    """Separable ConvGRU: horizontal (1,5) pass then vertical (5,1) pass (spec a.8, DIP/RAFT)."""
+    """Separable ConvGRU: horizontal (1,5) pass then vertical (5,1) pass (architecture.md §2.7, DIP/RAFT)."""
 
     def __init__(self, hidden: int, inp: int):
         super().__init__()
@@ -353,7 +353,7 @@ class SepConvGRU(nn.Module):
 
 
 class DispHead(nn.Module):
-    """Delta = conv2(ReLU(conv1(h))), 2 output channels (Delta_x, Delta_y) (spec a.8)."""
+    """Delta = conv2(ReLU(conv1(h))), 2 output channels (Delta_x, Delta_y) (architecture.md §2.7)."""
 
     def __init__(self, hidden: int, mid: int):
         super().__init__()
@@ -365,7 +365,7 @@ class DispHead(nn.Module):
 
 
 class MaskHead(nn.Module):
-    """Convex-upsampling mask M = 0.25 * conv2(ReLU(conv1(h))), 144 channels (spec a.8)."""
+    """Convex-upsampling mask M = 0.25 * conv2(ReLU(conv1(h))), 144 channels (architecture.md §2.7)."""
 
     def __init__(self, hidden: int):
         super().__init__()
@@ -377,7 +377,7 @@ class MaskHead(nn.Module):
 
 
 class UpdateBlock(nn.Module):
-    """One update block: motion encoder, GRU on x = cat[c, motion], disparity head, mask head (spec a.8)."""
+    """One update block: motion encoder, GRU on x = cat[c, motion], disparity head, mask head (architecture.md §2.7)."""
 
     def forward(self, h, c, corr, flow):
         motion = self.motion(flow, corr)
@@ -386,7 +386,7 @@ class UpdateBlock(nn.Module):
 
 
 class IPUpdateBlock(UpdateBlock):
-    """U_IP = DIP SmallUpdateBlock: ConvGRU 3x3, head 128 -> 128 -> 2 (spec a.8)."""
+    """U_IP = DIP SmallUpdateBlock: ConvGRU 3x3, head 128 -> 128 -> 2 (architecture.md §2.7)."""
 
     def __init__(self, corr_channels: int = IP_GROUPS * len(IP_SEED_OFFSETS)):
         super().__init__()
@@ -397,7 +397,7 @@ class IPUpdateBlock(UpdateBlock):
 
 
 class RLSUpdateBlock(UpdateBlock):
-    """U_RLS = DIP BasicUpdateBlock: SepConvGRU, head 128 -> 256 -> 2 (spec a.8)."""
+    """U_RLS = DIP BasicUpdateBlock: SepConvGRU, head 128 -> 256 -> 2 (architecture.md §2.7)."""
 
     def __init__(self, corr_channels: int):
         super().__init__()
@@ -408,14 +408,14 @@ class RLSUpdateBlock(UpdateBlock):
 
 
 # ------------------------------------------------------------------------------------------------
-# Full network (spec a.1, a.10)
+# Full network (architecture.md §1, §2.9)
 # ------------------------------------------------------------------------------------------------
 
 Iters = Union[int, Tuple[int, int], Sequence[int]]
 
 
 class MIPNetTorch(nn.Module):
-    """MIPNet: encoder + IP/RLS update blocks shared by the 1/16 and 1/4 levels (spec a.1-a.10, f).
+    """MIPNet: encoder + IP/RLS update blocks shared by the 1/16 and 1/4 levels (architecture.md §1-§2.9, §2.10).
 
     forward(left, right, iters=(6, 6), seed=20, disp_init=None):
       left, right: (N,3,H,W) in 0..255, H and W multiples of 16 (no padding is done here).
@@ -459,7 +459,7 @@ class MIPNetTorch(nn.Module):
 
     @staticmethod
     def _parse_iters(iters: Iters) -> Tuple[int, int]:
-        """iters int -> same count at both levels, or (n16, n4) (spec g.3)."""
+        """iters int -> same count at both levels, or (n16, n4) (architecture.md §2.8)."""
         if isinstance(iters, int):
             n16, n4 = iters, iters
         else:
@@ -469,7 +469,7 @@ class MIPNetTorch(nn.Module):
         return n16, n4
 
     def _initial_flow(self, n, h16, w16, seed, disp_init, dtype, device) -> torch.Tensor:
-        """1/16 flow field (N,2,h16,w16): f_x = -d0/16 from the gamma draw, or -disp_init; f_y = 0 (a.5, g.1)."""
+        """1/16 flow field (N,2,h16,w16): f_x = -d0/16 from the gamma draw, or -disp_init; f_y = 0 (architecture.md §2.4)."""
         if disp_init is not None:
             if tuple(disp_init.shape) != (n, 1, h16, w16):
                 raise ValueError(
@@ -510,7 +510,7 @@ class MIPNetTorch(nn.Module):
         to_full: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
         preds: List[torch.Tensor],
     ) -> Tuple[torch.Tensor, torch.Tensor]:
-        """n_iters iterations of [IP + GRU_IP] then [RLS + GRU_RLS] at one level (spec a.10).
+        """n_iters iterations of [IP + GRU_IP] then [RLS + GRU_RLS] at one level (architecture.md §2.9).
 
         Appends the full-resolution prediction of every sub-update to `preds` in training mode.
         Returns the final flow and the mask of the last sub-update.
@@ -537,7 +537,7 @@ class MIPNetTorch(nn.Module):
         seed: Optional[int] = 20,
         disp_init: Optional[torch.Tensor] = None,
     ) -> Union[torch.Tensor, List[torch.Tensor]]:
-        """Forward pass, spec a.1 data flow and a.10 schedule."""
+        """Forward pass, architecture.md §1 data flow and §2.9 schedule."""
         n16, n4 = self._parse_iters(iters)
         n, _, height, width = left.shape
         if height % 16 or width % 16:
@@ -578,7 +578,7 @@ class MIPNetTorch(nn.Module):
 
 
 # ------------------------------------------------------------------------------------------------
-# Loss (spec c.1, g.5)
+# Loss (architecture.md §3.1)
 # ------------------------------------------------------------------------------------------------
 
 
@@ -589,7 +589,7 @@ def sequence_loss_torch(
     gamma: float = 0.8,
     max_disp: float = 700.0,
 ) -> torch.Tensor:
-    """L = sum_i gamma^(n-1-i) * mean_{valid} |d_i - d_gt| (spec c.1, g.5).
+    """L = sum_i gamma^(n-1-i) * mean_{valid} |d_i - d_gt| (architecture.md §3.1).
 
     valid = (valid >= 0.5) AND finite gt AND |gt| < max_disp; invalid gt is zeroed before the
     subtraction; a prediction with no valid pixel contributes 0. gt/valid: (N,1,H,W) or (N,H,W).

@@ -105,7 +105,7 @@ def _horizontal_grid(n: int, h: int, w: int) -> Callable[[np.random.Generator], 
 
 
 def _torch_stereo_ops(torch: Any) -> dict[str, Callable[..., Any]]:
-    """The spec's (a.6, a.7, a.9) torch expressions of the fused stereo kernels."""
+    """The torch expressions (architecture.md §2.5, §2.6, §2.8) of the fused stereo kernels."""
     F = torch.nn.functional
 
     def ip(fl, stack):

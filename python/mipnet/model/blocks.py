@@ -1,6 +1,6 @@
-"""MIPNet's building blocks (spec a.3 encoder with iAFF, a.8 update blocks), on mipnet's engine.
+"""MIPNet's building blocks (architecture.md §2.2 encoder with iAFF, §2.7 update blocks), on mipnet's engine.
 
-Module and attribute names follow spec (f.1) exactly, so ``state_dict()`` keys equal the canonical
+Module and attribute names follow architecture.md §2.10 exactly, so ``state_dict()`` keys equal the canonical
 key table (f.2) and weights move unchanged between mipnet and PyTorch.
 """
 
@@ -16,7 +16,7 @@ __all__ = ["MSCAMBranch", "MSCAM", "IAFF", "ResBlock", "Stem", "Encoder", "IPMot
 
 
 class MSCAMBranch(Module):
-    """conv1 1x1 c->c/r, BN, ReLU, conv2 1x1 c/r->c, BN: one branch of MS-CAM (spec a.3)."""
+    """conv1 1x1 c->c/r, BN, ReLU, conv2 1x1 c/r->c, BN: one branch of MS-CAM (architecture.md §2.2)."""
 
     def __init__(self, c: int, r: int = 4):
         super().__init__()
@@ -105,7 +105,7 @@ class Stem(Module):
 
 
 class Encoder(Module):
-    """BasicEncoderQuarter with iAFF: (B,3,H,W) -> (B,256,H/4,W/4) (spec a.3)."""
+    """BasicEncoderQuarter with iAFF: (B,3,H,W) -> (B,256,H/4,W/4) (architecture.md §2.2)."""
 
     def __init__(self, use_aff: bool = True):
         super().__init__()
@@ -246,7 +246,7 @@ class MaskHead(Module):
 
 
 class UpdateBlock(Module):
-    """motion encoder -> GRU on cat[h; context, motion] -> (h, mask, delta) (spec a.8)."""
+    """motion encoder -> GRU on cat[h; context, motion] -> (h, mask, delta) (architecture.md §2.7)."""
 
     def __init__(self, motion: Module, gru: Module, head_mid: int, hidden: int = 128):
         super().__init__()
@@ -258,7 +258,7 @@ class UpdateBlock(Module):
     def forward(self, h: Tensor, context: Tensor, corr: Tensor, flow: Tensor,
                 with_mask: bool = True) -> tuple[Tensor, Tensor | None, Tensor]:
         """(h', mask or None when ``with_mask`` is off, delta)."""
-        # the GRU input [h, x] with x = [context, ReLU(motion), flow] (spec a.8), assembled in one copy
+        # the GRU input [h, x] with x = [context, ReLU(motion), flow] (architecture.md §2.7), assembled in one copy
         h = self.gru(ops.cat_relu([h, context, self.motion(flow, corr), flow], [False, False, True, False], 1))
         return h, self.mask_head(h) if with_mask else None, self.disp_head(h)
 

@@ -1,4 +1,4 @@
-"""MIPNet's training loss (spec c.1 and g.5)."""
+"""MIPNet's training loss (architecture.md §3.1)."""
 
 from __future__ import annotations
 

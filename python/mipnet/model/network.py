@@ -1,7 +1,7 @@
 """``MIPNet``: the Multilevel Inverse Patchmatch Network (Leng et al., JMSE 2023) on mipnet's engine.
 
-Layer by layer as ``spec/mipnet-architecture.md`` (a) describes, with the binding clarifications of
-its section (g). Flow fields are carried as numpy-backed tensors in level pixel units with
+Layer by layer as docs/architecture.md §2 describes it (the paper's network, with the choices the paper leaves
+open made explicit there). Flow fields are carried as numpy-backed tensors in level pixel units with
 f = (f_x, f_y), f_x = -disparity, f_y = 0 (vertical constraint).
 """
 
@@ -50,9 +50,48 @@ class MIPNet(Module):
     the pixels, as FoundationStereo's ``--scale``. ``disp_init`` is then at 1/16 of the resized size.
     """
 
-    def __init__(self, **config: Any):
+    def __init__(self, *, use_aff: bool = True, use_ip: bool = True, use_rls: bool = True, rx: int = 3, ry: int = 1,
+                 vertical_constraint: bool = True, gamma_shape: float = 2.0, gamma_scale: float = 16.0,
+                 max_disp_init: float = 192.0):
+        """A MIPNet with freshly initialised weights (trained ones: :meth:`MIPNet.pretrained`, :func:`mipnet.load`).
+
+        The keywords are the fields of :class:`MIPNetConfig`, with its defaults (the full model of the paper);
+        ``MIPNet(**json.loads(config.to_json()))`` rebuilds a saved architecture.
+
+        Parameters
+        ----------
+        use_aff : bool, default True
+            Fuse each encoder residual block's branches with iAFF (iterative attentional feature fusion)
+            instead of a plain sum (the paper's Table 1 ablation).
+        use_ip : bool, default True
+            Run the Inverse-PatchMatch sub-update (IP: correlation at the flow and four diagonal seeds) in
+            every iteration.
+        use_rls : bool, default True
+            Run the Row Local Search sub-update (RLS: correlation over a window of shifts around the flow)
+            in every iteration, after IP. At least one of ``use_ip`` and ``use_rls`` must be on.
+        rx, ry : int, default 3, 1
+            Half-width and half-height of the RLS search window, in level pixels: it correlates
+            (2 rx + 1) x (2 ry + 1) shifts. Non-negative.
+        vertical_constraint : bool, default True
+            Keep the flow's vertical component at zero (rectified pairs: disparity moves along rows only);
+            False lets the updates move it vertically too.
+        gamma_shape, gamma_scale : float, default 2.0, 16.0
+            Shape k and scale theta of the Gamma distribution the initial disparity is drawn from, per 1/16
+            pixel, in full-resolution pixels (mean k * theta = 32 by default). Positive.
+        max_disp_init : float, default 192.0
+            The initial draws are clipped to [0, max_disp_init] pixels. Positive.
+
+        Raises
+        ------
+        ArgumentError
+            Neither IP nor RLS on, a negative ``rx`` / ``ry``, or a non-positive Gamma parameter.
+        TypeError
+            A positional argument or an unknown keyword.
+        """
         super().__init__()
-        self.config = MIPNetConfig(**config)
+        self.config = MIPNetConfig(use_aff=use_aff, use_ip=use_ip, use_rls=use_rls, rx=rx, ry=ry,
+                                   vertical_constraint=vertical_constraint, gamma_shape=gamma_shape,
+                                   gamma_scale=gamma_scale, max_disp_init=max_disp_init)
         cfg = self.config
         self.encoder = Encoder(use_aff=cfg.use_aff)
         if cfg.use_ip:
@@ -85,13 +124,58 @@ class MIPNet(Module):
         return self.encoder.stem.conv.weight.dtype
 
     def _blocks(self) -> list[tuple[str, UpdateBlock]]:
-        """The sub-updates of one iteration, in order: IP then RLS (spec a.8)."""
+        """The sub-updates of one iteration, in order: IP then RLS (architecture.md §2.7)."""
         return [(name, getattr(self, "update_" + name)) for name, on in
                 (("ip", self.config.use_ip), ("rls", self.config.use_rls)) if on]
 
     # ---- the forward pass ----------------------------------------------------------------------------
     def forward(self, left: Any, right: Any, iters: int | Sequence[int] = (6, 6), seed: int | None = 20,
                 disp_init: Any = None, scale: float = 1.0):
+        """Left-view disparity of a rectified stereo pair (call the model: ``model(left, right)``).
+
+        Parameters
+        ----------
+        left, right : array_like or Tensor
+            The rectified pair, 0..255: H x W x 3 RGB (uint8 or float), H x W or H x W x 1 grayscale
+            (repeated to three channels), or a batch (N, 3, H, W) as a float array or Tensor. Both of one
+            shape, H and W at least 32 (replicate-padded to multiples of 16 inside, cropped back); finite.
+            Converted to the model's dtype.
+        iters : int or (int, int), default (6, 6)
+            IPM iterations (n16, n4) at the 1/16 and the 1/4 level; an int runs as many at both.
+            ``n16 >= 1``, ``n4 >= 0`` (0: stop at 1/16 and upsample its hand-over field).
+        seed : int or None, default 20
+            Eval mode: seeds the Gamma draw of the initial disparity, so a pair always gives the same
+            result; None draws from mipnet's global generator (``mipnet.manual_seed``), as training mode
+            always does.
+        disp_init : array_like or Tensor, optional
+            The initial disparity instead of the Gamma draw, (N, 1, H16, W16) in full-resolution pixels,
+            H16, W16 = the padded (and, with ``scale``, resized) size / 16; finite.
+        scale : float, default 1.0
+            Eval mode only: run the network on both images resized by this factor (antialiased bilinear)
+            and resize the disparity back, its values divided by the horizontal factor applied. Below 1
+            for photographs whose disparities exceed the trained range (about 160 px for the shipped
+            weights); the resized images must stay at least 32 x 32.
+
+        Returns
+        -------
+        numpy.ndarray or list of Tensor
+            Eval mode: the final disparity (positive, pixels of the input) as a numpy array of the
+            model's dtype, (H, W) for a single pair or (N, H, W) for a batch. Training mode: every
+            supervised prediction in order, n16 * s at the 1/16 level then n4 * s at 1/4 (s = 1 or 2
+            sub-updates per iteration: IP and/or RLS), each an (N, 1, H, W) Tensor for the sequence loss.
+
+        Raises
+        ------
+        ShapeError
+            An image of another layout, smaller than 32 x 32 (also after ``scale``), the two images of
+            different shapes, or ``disp_init`` of the wrong shape.
+        ArgumentError
+            Bad ``iters``, an image of a non-numeric dtype or with NaN / inf, a non-finite ``disp_init``,
+            a non-positive ``scale``, or ``scale`` in training mode.
+        MemoryLimitError
+            The pass needs more memory than the process may still use (:func:`mipnet.model.memory.check`;
+            ``MIPNET_MEMORY_CHECK=0`` skips the check).
+        """
         n16, n4 = _parse_iters(iters)
         l, batched = _as_batch(left, "left", self.dtype)
         r, _ = _as_batch(right, "right", self.dtype)
@@ -118,7 +202,7 @@ class MIPNet(Module):
     def _run(self, left: np.ndarray, right: np.ndarray, pad: tuple[int, int, int, int], n16: int, n4: int,
              seed: int | None, disp_init: Any) -> list[Tensor]:
         n = left.shape[0]
-        # normalise to [-1, 1] as spec a.1 writes it, I' = 2 (I / 255) - 1; replicate-pad both images identically
+        # normalise to [-1, 1] as architecture.md §1 writes it, I' = 2 (I / 255) - 1; replicate-pad both images identically
         with scope("encoder"):
             images = ops.pad(Tensor(2 * (np.concatenate([left, right]) / 255) - 1), list(pad), mode="replicate")
             fl4, fr4 = ops.split(self.encoder(images), [n, n], 0)
@@ -132,9 +216,9 @@ class MIPNet(Module):
         with scope("level 1/16"):
             flow, mask = self._iterate(fl16, fr16, hidden16, context16, flow16, n16, preds if collect else None, 4)
         if n4 == 0:
-            # eval: the hand-over field, convex x4 then bilinear x4 (spec g.3); training has its 1/16 predictions
+            # eval: the hand-over field, convex x4 then bilinear x4 (architecture.md §2.8); training has its 1/16 predictions
             return preds if collect else [self._prediction(flow, mask, 4)]
-        with no_grad():  # the hand-over field is detached (spec a.10)
+        with no_grad():  # the hand-over field is detached (architecture.md §2.9)
             flow4 = ops.convex_upsample(flow.detach(), mask.detach(), rate=4)
         with scope("level 1/4"):
             self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
@@ -164,7 +248,7 @@ class MIPNet(Module):
                 if recompute:
                     preds.append(checkpoint(lambda h, f, m=block.mask_head: self._prediction(f, m(h), bilinear), hidden, flow))
                     if last:
-                        with no_grad():  # the hand-over mask (detached, spec a.10)
+                        with no_grad():  # the hand-over mask (detached, architecture.md §2.9)
                             mask = block.mask_head(hidden)
                 elif preds is not None and (bilinear is not None or last):
                     preds.append(self._prediction(flow, mask, bilinear or 1))
@@ -181,7 +265,7 @@ class MIPNet(Module):
         return -up
 
     def _initial_flow(self, n: int, h16: int, w16: int, seed: int | None, disp_init: Any) -> Tensor:
-        """The 1/16 flow (N,2,h16,w16): f_x = -d0 with d0 the gamma draw (a.5, g.1) or ``disp_init``."""
+        """The 1/16 flow (N,2,h16,w16): f_x = -d0 with d0 the gamma draw (architecture.md §2.4) or ``disp_init``."""
         dtype = self.dtype
         if disp_init is not None:
             d0 = np.asarray(disp_init.numpy() if isinstance(disp_init, Tensor) else disp_init, dtype=np.float64)
@@ -190,10 +274,15 @@ class MIPNet(Module):
                                  f"input), got {list(d0.shape)}")
             if not np.all(np.isfinite(d0)):
                 raise ArgumentError("MIPNet: disp_init contains NaN or inf")
-        else:
-            rng = default_generator() if (self.training or seed is None) else np.random.default_rng(seed)
-            d0 = gamma_draw(rng, (n, 1, h16, w16), self.config.gamma_shape, self.config.gamma_scale,
+        elif self.training or seed is None:
+            d0 = gamma_draw(default_generator(), (n, 1, h16, w16), self.config.gamma_shape, self.config.gamma_scale,
                             self.config.max_disp_init) / 16.0
+        else:
+            # eval with a seed: every pair of a batch starts from the draw its own run would make, so a pair's
+            # disparity does not depend on the batch it comes in
+            d0 = gamma_draw(np.random.default_rng(seed), (1, 1, h16, w16), self.config.gamma_shape,
+                            self.config.gamma_scale, self.config.max_disp_init) / 16.0
+            d0 = np.repeat(d0, n, axis=0)
         return Tensor(np.concatenate([-d0, np.zeros_like(d0)], axis=1).astype(dtype))
 
     # ---- weights ---------------------------------------------------------------------------------------
@@ -228,7 +317,7 @@ def load(path: str, strict: bool = True) -> MIPNet:
 
 
 def gamma_draw(rng: np.random.Generator, shape: tuple[int, ...], k: float, theta: float, max_disp: float) -> np.ndarray:
-    """d0 ~ Gamma(k, theta) clamped to [0, max_disp] (spec g.1): for integer k,
+    """d0 ~ Gamma(k, theta) clamped to [0, max_disp] (architecture.md §2.4): for integer k,
     d0 = -theta * Σ_{j=1..k} ln U_j with U_j = 1 - uniform[0,1) in (0, 1]."""
     if float(k).is_integer():
         u = 1.0 - rng.random((int(k),) + tuple(shape))
@@ -292,7 +381,7 @@ def _resize_images(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 
 def _padding(h: int, w: int) -> tuple[int, int, int, int]:
-    """[left, right, top, bottom] replicate padding to a multiple of 16, split as spec (g.4)."""
+    """[left, right, top, bottom] replicate padding to a multiple of 16, split as architecture.md §2.1."""
     ph, pw = -h % DIVISOR, -w % DIVISOR
     return pw // 2, pw - pw // 2, ph // 2, ph - ph // 2
 
@@ -305,11 +394,11 @@ def _crop(pred: Tensor, pad: tuple[int, int, int, int], shape: tuple[int, ...]) 
 
 
 class _CorrelationOperands:
-    """What the IP and RLS correlations of one level read, built once per level (spec a.6, a.7).
+    """What the IP and RLS correlations of one level read, built once per level (architecture.md §2.5, §2.6).
 
     With the vertical constraint the flow's f_y is exactly 0, so the warp is a horizontal interpolation
     and the fused kernels take channels-last features, warping inside (no seed stack, no warped map).
-    Without it, the seed stack is built and warped with grid_sample, as the spec writes it."""
+    Without it, the seed stack is built and warped with grid_sample, as architecture.md §2.5 writes it."""
 
     def __init__(self, fl: Tensor, fr: Tensor, cfg: MIPNetConfig):
         self.cfg = cfg
@@ -337,7 +426,7 @@ class _CorrelationOperands:
 
 def _seed_stack(fr: Tensor) -> Tensor:
     """cat[S_0..S_4] (N,5C,h,w): F_R shifted by the centre and the 4 diagonal seeds (ox, oy), clamped
-    at the border by replicate padding (spec a.6)."""
+    at the border by replicate padding (architecture.md §2.5)."""
     h, w = fr.shape[2], fr.shape[3]
     shifted = [fr]
     for ox, oy in ((-1, -1), (1, -1), (-1, 1), (1, 1)):
@@ -350,7 +439,7 @@ def _seed_stack(fr: Tensor) -> Tensor:
 
 def _sampling_grid(flow: np.ndarray) -> Tensor:
     """grid_sample grid (N,h,w,2) for positions p + f(p), normalised with align_corners=True:
-    g = 2 (p + f) / max(size - 1, 1) - 1 (spec a.4)."""
+    g = 2 (p + f) / max(size - 1, 1) - 1 (architecture.md §2.3)."""
     n, _, h, w = flow.shape
     ys, xs = np.meshgrid(np.arange(h, dtype=flow.dtype), np.arange(w, dtype=flow.dtype), indexing="ij")
     gx = 2 * (xs + flow[:, 0]) / max(w - 1, 1) - 1

@@ -1,4 +1,4 @@
-"""The stereo correlations of MIPNet, fused (spec a.6, a.7).
+"""The stereo correlations of MIPNet, fused (architecture.md §2.5, §2.6).
 
 Kernels: ``ip_corr_fwd`` / ``ip_corr_bwd`` and ``rls_corr_fwd`` / ``rls_corr_bwd`` on already warped
 maps (any flow), and ``ip_warp_corr_fwd`` / ``ip_warp_corr_bwd``, ``rls_warp_corr_fwd`` /
@@ -17,7 +17,7 @@ from ._common import as_tensor
 
 __all__ = ["ip_correlation", "rls_correlation", "ip_warp_correlation", "rls_warp_correlation", "IP_SEEDS"]
 
-#: MIPNet's IP seed offsets (ox, oy) in stack order (spec a.6): centre, tl, tr, dl, dr.
+#: MIPNet's IP seed offsets (ox, oy) in stack order (architecture.md §2.5): centre, tl, tr, dl, dr.
 IP_SEEDS = ((0, 0), (-1, -1), (1, -1), (-1, 1), (1, 1))
 
 
@@ -56,7 +56,7 @@ class _RlsCorr(Function):
 
 
 def ip_correlation(fl: Tensor, stack: Tensor, groups: int = 2) -> Tensor:
-    """Inverse-propagation correlation (spec a.6, semantic layout).
+    """Inverse-propagation correlation (architecture.md §2.5, semantic layout).
 
     Output channel ``S*g + s`` is the mean over the C/G channels k of group g of
     ``fl[g*C/G + k] * stack[s*C + g*C/G + k]``; the number of seeds S is ``stack.shape[1] // C``.
@@ -81,7 +81,7 @@ def ip_correlation(fl: Tensor, stack: Tensor, groups: int = 2) -> Tensor:
 
 
 def rls_correlation(fl: Tensor, warped: Tensor, rx: int = 3, ry: int = 1) -> Tensor:
-    """Rectangular-local-search correlation (spec a.7).
+    """Rectangular-local-search correlation (architecture.md §2.6).
 
     With P the replicate padding of ``warped`` by [rx, rx, ry, ry], output channel ``(2*ry+1)*i + j``
     (x shift outer, y shift inner) is the channel mean of ``fl * P[:, :, j:j+h, i:i+w]``; P is never built.
@@ -142,7 +142,7 @@ def _flow_x(flow_x, like: Tensor):
 
 
 def ip_warp_correlation(fl: Tensor, fr: Tensor, flow_x, groups: int = 2, seeds=IP_SEEDS) -> Tensor:
-    """IP correlation of the seed stack warped by a horizontal flow, without building either (spec a.6).
+    """IP correlation of the seed stack warped by a horizontal flow, without building either (architecture.md §2.5).
 
     Equals ``ip_correlation(fl, grid_sample(stack(fr), grid(flow)))`` for the flow ``(flow_x, 0)``
     (border padding, align_corners=True) with ``stack`` the seed shifts ``S_s(y, x) = fr(clamp(y +
@@ -173,7 +173,7 @@ def ip_warp_correlation(fl: Tensor, fr: Tensor, flow_x, groups: int = 2, seeds=I
 
 def rls_warp_correlation(fl: Tensor, fr: Tensor, flow_x, rx: int = 3, ry: int = 1) -> Tensor:
     """RLS correlation of the right features warped by a horizontal flow, without building the warped
-    map (spec a.7).
+    map (architecture.md §2.6).
 
     Equals ``rls_correlation(fl, grid_sample(fr, grid(flow)), rx, ry)`` for the flow ``(flow_x, 0)``
     (border padding, align_corners=True). The flow gets no gradient.

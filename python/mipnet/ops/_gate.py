@@ -1,4 +1,4 @@
-"""iAFF's attentional gate, fused (kernels: ``attention_gate_fwd`` / ``attention_gate_bwd``; spec a.3)."""
+"""iAFF's attentional gate, fused (kernels: ``attention_gate_fwd`` / ``attention_gate_bwd``; architecture.md §2.2)."""
 
 from __future__ import annotations
 

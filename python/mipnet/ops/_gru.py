@@ -1,5 +1,5 @@
 """The gate arithmetic of a convolutional GRU step, fused (kernels: ``gru_reset_fwd`` / ``gru_reset_bwd``,
-``gru_update_fwd`` / ``gru_update_bwd``; spec a.8).
+``gru_update_fwd`` / ``gru_update_bwd``; architecture.md §2.7).
 
 One step is ``zr = conv(hx)`` (z and r from one convolution), ``q = gru_candidate(zr, hx, Wq, bq)``
 (= ``conv(gru_reset(zr, hx))``), ``h' = gru_update(zr, q, hx)``, with ``hx = cat[h, x]``.

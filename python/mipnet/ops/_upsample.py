@@ -1,4 +1,4 @@
-"""Convex upsampling (RAFT; spec a.9), fused (kernels: ``convex_upsample_fwd`` / ``convex_upsample_bwd``)."""
+"""Convex upsampling (RAFT; architecture.md §2.8), fused (kernels: ``convex_upsample_fwd`` / ``convex_upsample_bwd``)."""
 
 from __future__ import annotations
 

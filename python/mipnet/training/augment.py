@@ -1,9 +1,9 @@
-"""Training augmentations of spec c.3: RAFT-Stereo's ``FlowAugmentor`` / ``SparseFlowAugmentor``
+"""Training augmentations of architecture.md §3.3: RAFT-Stereo's ``FlowAugmentor`` / ``SparseFlowAugmentor``
 with a CREStereo-like occlusion patch.
 
 An augmentor is a DataLoader transform, ``aug(sample, rng) -> sample``: every random choice comes
 from the ``numpy.random.Generator`` it is given (the loader seeds one per sample from
-(seed, epoch, position)), so a run is reproducible. The steps, in the spec's order:
+(seed, epoch, position)), so a run is reproducible. The steps, in the order of architecture.md §3.3:
 
 1. photometric: ColorJitter (brightness, contrast, saturation, hue in a random order, as
    torchvision on PIL images) then gamma; independent draws for the two views with probability
@@ -378,7 +378,7 @@ def _margin_origin(rng: np.random.Generator, slack: int, before: int, after: int
 
 
 class StereoAugmentor:
-    """The dense-ground-truth augmentation of spec c.3 (RAFT-Stereo ``FlowAugmentor`` with ``yjitter``).
+    """The dense-ground-truth augmentation of architecture.md §3.3 (RAFT-Stereo ``FlowAugmentor`` with ``yjitter``).
 
     Parameters
     ----------
@@ -767,7 +767,7 @@ class StereoAugmentor:
 
 class SparseStereoAugmentor(StereoAugmentor):
     """Augmentation for sparse ground truth (KITTI, ETH3D, Middlebury): RAFT-Stereo's
-    ``SparseFlowAugmentor`` (spec c.3.5).
+    ``SparseFlowAugmentor`` (architecture.md §3.3).
 
     Differences from :class:`StereoAugmentor`: one scale for both axes (no stretch), clamped to
     >= max((crop_h + 1) / H, (crop_w + 1) / W), applied with probability ``spatial_prob`` = 0.8;
@@ -856,7 +856,7 @@ class SparseStereoAugmentor(StereoAugmentor):
 
 
 def make_augmentor(crop: tuple[int, int], sparse: bool = False, augment: bool = True, **overrides) -> StereoAugmentor:
-    """The spec c.3 augmentor for ``crop``: :class:`SparseStereoAugmentor` for sparse ground truth,
+    """The architecture.md §3.3 augmentor for ``crop``: :class:`SparseStereoAugmentor` for sparse ground truth,
     else :class:`StereoAugmentor`.
 
     Parameters

@@ -56,7 +56,7 @@ class TrainConfig:
         Pairs per step, crop (H, W) after augmentation, (1/16, 1/4) IPM iterations in training.
     lr, weight_decay, pct_start, clip, gamma, max_disp :
         AdamW max LR and decay, one-cycle warm-up fraction, gradient-norm clip, sequence-loss
-        weight decay and the ground-truth magnitude limit (spec c.1, c.2).
+        weight decay and the ground-truth magnitude limit (architecture.md §3.1, §3.2).
     freeze_bn : bool
         Keep BatchNorm in eval mode (fine-tuning).
     augment : bool

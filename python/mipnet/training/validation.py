@@ -5,6 +5,7 @@ and bad-1/2/3 pooled over valid pixels, with OpenCV SGBM on the same pairs as a 
 
 from __future__ import annotations
 
+import importlib.util
 from typing import Callable
 
 import numpy as np
@@ -41,7 +42,8 @@ def lower_rows_veil(height: int) -> VeilParams:
 def validation_sets(size: tuple[int, int], pairs: int, extra: str | None = None) -> dict:
     """name -> dataset: ``air`` (make_pair), ``turbid``, ``low_light`` (make_pair under those
     presets), ``scenes`` (natural-statistics scenes), ``scenes_veiled`` (the same scenes under
-    :func:`lower_rows_veil`), and ``extra`` (a data spec) if given."""
+    :func:`lower_rows_veil`), ``photos`` (pairs made from the held-out photographs, where they and
+    scikit-image are installed), and ``extra`` (a data spec) if given."""
     from .. import data
 
     h, w = size
@@ -53,11 +55,20 @@ def validation_sets(size: tuple[int, int], pairs: int, extra: str | None = None)
         "scenes": scenes,
         "scenes_veiled": VeiledSet(scenes, lower_rows_veil(h)),
     }
+    if photo_pairs_available():
+        sets["photos"] = data.PhotoStereo(pairs, h, w, seed=VALIDATION_SEED_START)
     if extra:
         spec = parse_spec(extra)
         ds = open_spec(spec, size, VALIDATION_SEED_START, pairs)
         sets[spec.name] = [ds[i] for i in range(min(pairs, len(ds)))]
     return sets
+
+
+def photo_pairs_available() -> bool:
+    """Whether held-out photographs and the segmentation that photo pairs need are installed."""
+    from ..data import photographs
+
+    return importlib.util.find_spec("skimage") is not None and bool(photographs.names(held_out=True))
 
 
 def _summary(result: dict) -> dict:
@@ -95,7 +106,7 @@ def format_validation(step: int | None, table: dict, reference: dict | None = No
 
 
 def mean_epe(table: dict) -> float:
-    """The mean EPE over the four generated sets air, turbid, low_light and scenes: the number a run's
-    best model is chosen by (``scenes_veiled`` is reported beside it, not in it, so that runs
+    """The mean EPE over the generated sets air, turbid, low_light, scenes and (where present) photos: the
+    number a run's best model is chosen by (``scenes_veiled`` is reported beside it, not in it, so that runs
     validated before it existed are compared on the same number)."""
-    return float(np.mean([table[k]["epe"] for k in ("air", "turbid", "low_light", "scenes") if k in table]))
+    return float(np.mean([table[k]["epe"] for k in ("air", "turbid", "low_light", "scenes", "photos") if k in table]))
