@@ -78,17 +78,10 @@ def names(held_out: bool = False) -> list[str]:
 
 def load(name: str):
     """Photograph ``name`` as an RGB ``PIL.Image`` (the longer side at most 1,600 px)."""
-    from PIL import Image
-
     path = _available().get(name)
     if path is None:
         raise ArgumentError(f"photographs: {name!r} is not an available photograph ({len(_available())} are)")
-    with Image.open(path) as opened:
-        image = opened.convert("RGB")
-    reduction = max(image.size) / _MAX_SIDE
-    if reduction > 1:
-        image = image.resize((round(image.size[0] / reduction), round(image.size[1] / reduction)), Image.BOX)
-    return image
+    return textures.read_photo(path, _MAX_SIDE)
 
 
 def sources() -> list[str]:

@@ -247,20 +247,24 @@ def photo(name: str) -> Texture:
 
     Grey photographs become three equal channels; sides above 512 px are reduced to 512.
     """
-    from PIL import Image
-
     entries = {entry[3]: entry for entry in PHOTOS}
     path = photo_path(entries[name][1], entries[name][2]) if name in entries else None
     if path is None:
         raise ArgumentError(f"photo: {name!r} is not an installed photograph; available: {list(available_photos())}")
+    return _texture(np.asarray(read_photo(path, _PHOTO_MAX_SIDE)), periodic=False, name=name)
+
+
+def read_photo(path: str, max_side: int):
+    """The image file at ``path`` as an RGB ``PIL.Image`` (grey becomes three equal channels), reduced so that
+    its longer side is at most ``max_side`` (box filter, aspect ratio kept)."""
+    from PIL import Image
+
     with Image.open(path) as opened:
         image = opened.convert("RGB")
-        reduction = max(image.size) / _PHOTO_MAX_SIDE
-        if reduction > 1:
-            # Resize so the longer side becomes _PHOTO_MAX_SIDE, keeping the aspect ratio.
-            image = image.resize((round(image.size[0] / reduction), round(image.size[1] / reduction)), Image.BOX)
-        pixels = np.asarray(image)
-    return _texture(pixels, periodic=False, name=name)
+    reduction = max(image.size) / max_side
+    if reduction > 1:
+        image = image.resize((round(image.size[0] / reduction), round(image.size[1] / reduction)), Image.BOX)
+    return image
 
 
 # ------------------------------------------------------------------------------- procedural
