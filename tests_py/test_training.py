@@ -17,8 +17,10 @@ import mipnet
 import mipnet.cli
 from mipnet.errors import ArgumentError, FormatError
 from mipnet.training import fit, resolve_config
+from mipnet.training import checkpoint
 from mipnet.training.checkpoint import list_checkpoints, load_latest_checkpoint
 from mipnet.data.registry import Mixture, parse_spec
+from mipnet.serialization import save_safetensors
 from mipnet.training.log import TrainLog
 from mipnet.training.validation import photo_pairs_available
 
@@ -68,6 +70,34 @@ def test_resume_is_bitwise_identical(tmp_path):
     assert list(a) == list(b)
     for key in a:
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def _tiny_state(step=5):
+    model = {"w": np.arange(6, dtype=np.float32).reshape(2, 3)}
+    optimizer = {"state": {0: {"step": np.array(2), "exp_avg": np.ones((2, 3), np.float32)}},
+                 "param_groups": [{"lr": 1e-4}]}
+    return checkpoint.TrainState(step=step, epoch=0, batch=step, model=model, optimizer=optimizer,
+                                 schedule={"last_step": step}, rng_state={"state": 1},
+                                 config_json=mipnet.training.TrainConfig().to_json(), model_config="{}")
+
+
+def test_the_digest_covers_the_metadata_so_an_altered_step_is_detected(tmp_path):
+    tensors, meta = checkpoint._flatten(_tiny_state())
+    path = str(tmp_path / "ckpt.safetensors")
+    save_safetensors(path, tensors, {**meta, "step": "0"})
+    with pytest.raises(FormatError, match="digest mismatch"):
+        checkpoint.read_checkpoint(path)
+    save_safetensors(path, tensors, meta)
+    assert checkpoint.read_checkpoint(path).step == 5
+
+
+def test_a_checkpoint_of_the_first_format_still_loads(tmp_path):
+    """mipnet-checkpoint-1 files (runs written before the digest covered the metadata) resume as before."""
+    tensors, meta = checkpoint._flatten(_tiny_state(7))
+    meta.update(format=checkpoint.TENSOR_DIGEST_FORMAT, digest=checkpoint._digest(tensors))
+    path = str(tmp_path / "ckpt.safetensors")
+    save_safetensors(path, tensors, meta)
+    assert checkpoint.read_checkpoint(path).step == 7
 
 
 def test_damaged_checkpoint_falls_back_to_previous(tmp_path, caplog):

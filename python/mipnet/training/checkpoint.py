@@ -3,8 +3,9 @@
 A checkpoint holds the model's state dict (parameters and BatchNorm buffers), AdamW's moments and
 step counts, the one-cycle schedule's position, the training step, the data loader's position
 (epoch and batch) and the state of mipnet's global generator (the gamma draws of training mode),
-plus the run's ``TrainConfig``. Its metadata carries a SHA-256 digest of every tensor, so a file
-that was damaged after it was written is detected on load; writes are atomic, so a file is never
+plus the run's ``TrainConfig``. Its metadata carries a SHA-256 digest of every tensor and every other
+metadata entry (the step, the loader's position, the config...), so a file that was damaged after it was
+written is detected on load (files of the first format, whose digest covered the tensors only, still load); writes are atomic, so a file is never
 half-written. The newest :data:`KEEP` checkpoints are kept; loading falls back to the previous one
 when the newest is unreadable.
 """
@@ -25,7 +26,9 @@ from ..errors import FormatError
 from ..serialization import load_safetensors, save_safetensors
 
 KEEP = 2
-FORMAT = "mipnet-checkpoint-1"
+FORMAT = "mipnet-checkpoint-2"
+#: The first format: the same file with a digest of the tensors only.
+TENSOR_DIGEST_FORMAT = "mipnet-checkpoint-1"
 _NAME = re.compile(r"^ckpt-(\d{8})\.safetensors$")
 
 logger = logging.getLogger(__name__)
@@ -46,13 +49,17 @@ class TrainState:
     model_config: str
 
 
-def _digest(tensors: Mapping[str, np.ndarray]) -> str:
-    """SHA-256 over (name, dtype, shape, bytes) of every tensor in name order."""
+def _digest(tensors: Mapping[str, np.ndarray], meta: Mapping[str, str] | None = None) -> str:
+    """SHA-256 over (name, dtype, shape, bytes) of every tensor in name order, then (with ``meta``) every
+    metadata entry but the digest itself in key order."""
     h = hashlib.sha256()
     for name in sorted(tensors):
         a = np.ascontiguousarray(tensors[name])
         h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
         h.update(a.tobytes())
+    for key in sorted(meta or {}):
+        if key != "digest":
+            h.update(json.dumps([key, meta[key]]).encode())
     return h.hexdigest()
 
 
@@ -63,15 +70,16 @@ def _flatten(state: TrainState) -> tuple[dict[str, np.ndarray], dict[str, str]]:
             tensors[f"optim/{index}/{name}"] = np.asarray(value)
     meta = {"format": FORMAT, "step": str(state.step), "epoch": str(state.epoch), "batch": str(state.batch),
             "schedule": json.dumps(state.schedule), "rng_state": json.dumps(state.rng_state),
-            "param_groups": json.dumps(state.optimizer["param_groups"]), "config": state.config_json, "model_config": state.model_config,
-            "digest": _digest(tensors)}
+            "param_groups": json.dumps(state.optimizer["param_groups"]), "config": state.config_json,
+            "model_config": state.model_config}
+    meta["digest"] = _digest(tensors, meta)
     return tensors, meta
 
 
 def _unflatten(tensors: dict[str, np.ndarray], meta: dict[str, str], path: str) -> TrainState:
-    if meta.get("format") != FORMAT:
+    if meta.get("format") not in (FORMAT, TENSOR_DIGEST_FORMAT):
         raise FormatError(f"{path}: not a mipnet training checkpoint (format {meta.get('format')!r})")
-    if meta.get("digest") != _digest(tensors):
+    if meta.get("digest") != _digest(tensors, meta if meta["format"] == FORMAT else None):
         raise FormatError(f"{path}: checkpoint digest mismatch (the file was damaged after it was written)")
     model = {k[len("model/"):]: v for k, v in tensors.items() if k.startswith("model/")}
     optim_state: dict[int, dict] = {}
