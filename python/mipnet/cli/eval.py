@@ -1,6 +1,7 @@
 """``mipnet eval``: metrics of MIPNet and OpenCV's SGBM on a dataset of the registry.
 
     mipnet eval --dataset synthetic-underwater --preset turbid --n 50 --size 384 512
+    mipnet eval --dataset survey-underwater --preset turbid --n 50 --size 384 512   # the scene within visibility
     mipnet eval --dataset kitti2015 --root /data/kitti --out kitti.jsonl     # rows written as pairs are scored
     mipnet eval --dataset motorcycle --methods mipnet                       # without OpenCV
 
@@ -9,6 +10,11 @@ runs it), scikit-image for ``motorcycle`` and the ``photos`` sets, tifffile for 
 one is one line saying what to install (exit status 2); ``--methods mipnet`` runs without OpenCV. A
 dataset of one pair (the real pairs) is read before the model loads, so that its error is the
 command's. A pair that cannot be read is reported once and left out of every method's pass.
+
+On an under-water generated set (``*-underwater``) every row is followed by the same metrics over the pixels whose
+texture SNR (:func:`mipnet.underwater.texture_snr` of the clean left view under the pair's water, 9x9 window) is
+>= 1 and < 1, with ``share``, the percentage of the valid pixels in each: where the water left no texture above the
+sensor noise, no matcher can find the disparity.
 
 ``--out FILE`` appends JSON lines as the run goes: one per pair and table row (``"method"``,
 ``"pair"``: the left file or the dataset index, the metrics, ``"coverage"``), written and flushed as
@@ -88,7 +94,8 @@ def check_dependencies(dataset: str, methods: list[str]) -> None:
 
 
 def open_dataset(args: argparse.Namespace):
-    """The evaluation pairs named by ``--dataset`` (``--root`` for the on-disk sets and fetched real pairs)."""
+    """The evaluation pairs named by ``--dataset`` (``--root`` for the on-disk sets and fetched real pairs); the
+    pairs of under-water generated sets carry their texture SNR map, for the split rows."""
     from ..data.registry import open_dataset as open_registered
 
     entry = DATASETS[args.dataset]
@@ -97,7 +104,7 @@ def open_dataset(args: argparse.Namespace):
     if entry.kind == "disk" and not args.root:
         raise ArgumentError(f"--dataset {args.dataset} needs --root DIR")
     return open_registered(args.dataset, root=args.root, split="test", size=tuple(args.size), seed=args.seed,
-                           count=args.n, water=args.preset, resolution=args.resolution)
+                           count=args.n, water=args.preset, resolution=args.resolution, texture_snr=entry.underwater)
 
 
 def _json_value(value):
@@ -143,7 +150,7 @@ class ResultLog:
 
 def run(args: argparse.Namespace) -> int:
     from ..model import pretrained
-    from ..stereo.evaluation import COVERAGES, evaluate_coverages, format_table, mipnet_rows, result_row
+    from ..stereo.evaluation import COVERAGES, evaluate_coverages, format_table, mipnet_rows, result_rows
 
     methods = parse_methods(args.methods)
     check_dependencies(args.dataset, methods)
@@ -193,7 +200,8 @@ def run(args: argparse.Namespace) -> int:
                                  current["pair"], (disp, confident), "covered")
                     return disp
 
-                rows += mipnet_rows(pairs(), predict, method, args.aggregation, args.min_confidence, on_error)
+                rows += mipnet_rows(pairs(), predict, method, args.aggregation, args.min_confidence, on_error,
+                                    snr_split=True)
         if "sgbm" in methods:
             from ..stereo.baselines import sgbm
 
@@ -205,13 +213,14 @@ def run(args: argparse.Namespace) -> int:
 
             # sgbm_rows' one pass, with each pair's rows written as it is scored
             results = evaluate_coverages(pairs(), predict_sgbm, COVERAGES, on_error)
-            rows += [result_row("SGBM (full coverage)", results["full"], args.aggregation),
-                     result_row("SGBM (covered)", results["covered"], args.aggregation)]
+            rows += (result_rows("SGBM (full coverage)", results["full"], args.aggregation, snr_split=True)
+                     + result_rows("SGBM (covered)", results["covered"], args.aggregation, snr_split=True))
         for row in rows:
             log.write({**row, "summary": args.aggregation})
     finally:
         log.close()
-    print(f"{label}: {count} pairs, {args.aggregation} over images; bad-x and d1 in percent, epe/a90/rms in px")
+    split = "; share: percent of the valid pixels in the row's texture-SNR band" if any("share" in r for r in rows) else ""
+    print(f"{label}: {count} pairs, {args.aggregation} over images; bad-x and d1 in percent, epe/a90/rms in px{split}")
     if any(row["images"] for row in rows):
         print(format_table(rows))
     else:

@@ -5,7 +5,10 @@ Three kinds of set:
 * generated (no root): ``scenes`` (natural-statistics scenes, :class:`mipnet.data.SceneStereo`),
   ``scenes-underwater`` (the same under water), ``synthetic`` (the planar scenes of
   :func:`mipnet.data.make_pair`), ``synthetic-underwater``, ``photos`` (pairs made from single real
-  photographs, :class:`mipnet.data.PhotoStereo`), ``photos-underwater``;
+  photographs, :class:`mipnet.data.PhotoStereo`), ``photos-underwater``, and the survey-like under-water
+  sets ``survey-underwater`` (the scenes of ``synthetic-underwater``) and ``scenes-survey-underwater`` (those of
+  ``scenes-underwater``): the same scenes and water, with the range mapping fitted per pair so that the scene
+  lies within the water's visibility (:func:`mipnet.underwater.survey_water`), as an ROV flies a survey;
 * on disk, with a root folder in the official layout: ``sceneflow``, ``middlebury2014``, ``middeval3``,
   ``eth3d``, ``kitti2012``, ``kitti2015``, ``crestereo``, and ``folder`` (a folder with ``left/``,
   ``right/`` and optionally ``disp/``, files paired by sorted name);
@@ -53,10 +56,13 @@ class RegisteredDataset:
     underwater: bool = False
 
 
-def _generated(generator: type, underwater: bool) -> Callable[..., Dataset]:
-    def open_generated(size: tuple[int, int], seed: int, count: int, water, **_) -> Dataset:
+def _generated(generator: type, underwater: bool, survey: bool = False) -> Callable[..., Dataset]:
+    def open_generated(size: tuple[int, int], seed: int, count: int, water, texture_snr: bool = False,
+                       **_) -> Dataset:
         h, w = size
-        return generator(count, h, w, seed=seed, underwater=(water or "random") if underwater else None)
+        if not underwater:
+            return generator(count, h, w, seed=seed)
+        return generator(count, h, w, seed=seed, underwater=water or "random", survey=survey, texture_snr=texture_snr)
     return open_generated
 
 
@@ -79,6 +85,10 @@ _ENTRIES = [
     RegisteredDataset("synthetic-underwater", "generated", _generated(SyntheticStereo, True), underwater=True),
     RegisteredDataset("photos", "generated", _generated(PhotoStereo, False)),
     RegisteredDataset("photos-underwater", "generated", _generated(PhotoStereo, True), underwater=True),
+    RegisteredDataset("survey-underwater", "generated", _generated(SyntheticStereo, True, survey=True),
+                      underwater=True),
+    RegisteredDataset("scenes-survey-underwater", "generated", _generated(SceneStereo, True, survey=True),
+                      underwater=True),
     *(RegisteredDataset(name, "real", _real(name)) for name in REAL_SETS),
     RegisteredDataset("sceneflow", "disk",
                       lambda root, split, **_: SceneFlow(root, split="TEST" if split == "test" else "TRAIN")),
@@ -102,14 +112,16 @@ def dataset_names(*kinds: str) -> list[str]:
 
 
 def open_dataset(name: str, *, root: str | None = None, split: str = "train", size: tuple[int, int] = (384, 512),
-                 seed: int = 0, count: int = EVAL_SEED_START, water=None, resolution: str = "H") -> Dataset:
+                 seed: int = 0, count: int = EVAL_SEED_START, water=None, resolution: str = "H",
+                 texture_snr: bool = False) -> Dataset:
     """The dataset registered as ``name``.
 
     ``root``: the folder of an on-disk set (real sets: where ``mipnet fetch`` put them, None for the default);
     ``split``: ``"train"`` or ``"test"`` (SceneFlow's TRAIN / TEST); ``size``, ``seed``, ``count``: generated
     sets have ``count`` pairs of ``size`` (H, W) with pair seeds ``seed .. seed + count - 1``; ``water``: the
     water of under-water generated sets (a preset name or ``"random"``, the default) and of real pairs
-    (None: in air); ``resolution``: MiddEval3's F, H or Q.
+    (None: in air); ``resolution``: MiddEval3's F, H or Q; ``texture_snr``: the pairs of under-water generated
+    sets also carry ``texture_snr``, the texture SNR map of their clean left view (ignored by the other sets).
     """
     entry = DATASETS.get(name)
     if entry is None:
@@ -119,7 +131,8 @@ def open_dataset(name: str, *, root: str | None = None, split: str = "train", si
             raise ArgumentError(f"dataset {name} needs a root folder")
         if not os.path.isdir(root):
             raise ArgumentError(f"dataset {name}: no such folder {root}")
-    return entry.open(root=root, split=split, size=size, seed=seed, count=count, water=water, resolution=resolution)
+    return entry.open(root=root, split=split, size=size, seed=seed, count=count, water=water, resolution=resolution,
+                      texture_snr=texture_snr)
 
 
 @dataclass(frozen=True)

@@ -221,12 +221,28 @@ def water_for_item(underwater, seed: int) -> tuple[dict | None, str | None]:
     return {"preset": underwater}, underwater if isinstance(underwater, str) else "custom"
 
 
-def apply_water(pair: dict, underwater, seed: int) -> str | None:
-    """Degrades ``pair``'s images in place as :func:`water_for_item` says; returns the label."""
+def apply_water(pair: dict, underwater, seed: int, survey: bool = False, texture_snr: bool = False) -> str | None:
+    """Degrades ``pair``'s images in place as :func:`water_for_item` says; returns the label.
+
+    ``survey``: the water's baseline and range clip are fitted to the pair first
+    (:func:`mipnet.underwater.survey_water`: the scene inside the water's visibility). ``texture_snr``: also
+    stores ``pair["texture_snr"]``, the texture SNR of the clean left view under that water
+    (:func:`mipnet.underwater.texture_snr`, float32 (H, W)), computed before the images are degraded.
+    """
     from ..underwater.formation import degrade
+    from ..underwater.formation import texture_snr as texture_snr_map
 
     options, label = water_for_item(underwater, seed)
     if options is not None:
+        if survey:
+            from ..underwater.survey import survey_water
+            from ..underwater.water import resolve_params
+
+            overrides = dict(options)
+            water = resolve_params(overrides.pop("preset", "coastal"), overrides)
+            options = {"preset": survey_water(water, pair["disparity"])}
+        if texture_snr:
+            pair["texture_snr"] = texture_snr_map(pair["left"], pair["disparity"], **options)
         pair["left"], pair["right"] = degrade(pair["left"], pair["right"], pair["disparity"],
                                               seed=int(np.random.SeedSequence([seed, 1]).generate_state(1)[0]), **options)
     return label
@@ -278,15 +294,25 @@ class GeneratedStereo(Dataset):
         per item by :func:`mipnet.underwater.random_water` from a generator seeded by the pair seed;
         a ``WaterParams``; or a dict of :func:`mipnet.underwater.degrade` keyword arguments
         (``preset`` plus ``WaterParams`` overrides).
+    survey : bool
+        Under water only: fit the water's baseline and range clip to each pair so that the scene lies within
+        the water's visibility, as a survey flies (:func:`mipnet.underwater.survey_water`); the water is drawn
+        as without it, and so are the scenes.
+    texture_snr : bool
+        Under water only: items also carry ``texture_snr``, the texture SNR of the clean left view under the
+        item's water (:func:`mipnet.underwater.texture_snr`, window 9, sigma 3), for scoring by visibility;
+        off by default (it costs about 60% of the time of the degradation itself).
 
     Shapes
     ------
-    items: left, right (H, W, 3) uint8; disparity (H, W) float32; valid (H, W) bool.
+    items: left, right (H, W, 3) uint8; disparity (H, W) float32; valid (H, W) bool; with ``texture_snr``, texture_snr
+    (H, W) float32.
     """
 
     name = "generated"
 
-    def __init__(self, n: int, height: int, width: int, seed: int = 0, underwater=None):
+    def __init__(self, n: int, height: int, width: int, seed: int = 0, underwater=None, survey: bool = False,
+                 texture_snr: bool = False):
         owner = type(self).__name__
         if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 0:
             raise ArgumentError(f"{owner}: n must be a non-negative integer, got {n!r}")
@@ -297,7 +323,10 @@ class GeneratedStereo(Dataset):
             raise ArgumentError(f"{owner}: seeds {self.seed}..{self.seed + self.n - 1} straddle {EVAL_SEED_START:,} "
                                 "(training seeds lie below it, evaluation seeds from it on)")
         _check_water(owner, underwater)
+        if underwater is None and (survey or texture_snr):
+            raise ArgumentError(f"{owner}: survey and texture_snr need water (underwater=None: the pairs are in air)")
         self.underwater = underwater
+        self.survey, self.texture_snr = bool(survey), bool(texture_snr)
 
     def generate(self, height: int, width: int, seed: int) -> dict:
         raise NotImplementedError
@@ -312,9 +341,10 @@ class GeneratedStereo(Dataset):
         index = self._check_index(index)
         seed = self.seed + index
         pair = self.generate(self.height, self.width, seed)
-        label = apply_water(pair, self.underwater, seed)
-        pair["meta"] = {"dataset": self.name, "index": index, "seed": seed, "underwater": label, **self.extra_meta(),
-                        **pair.get("meta", {})}
+        label = apply_water(pair, self.underwater, seed, survey=self.survey, texture_snr=self.texture_snr)
+        survey = {"survey": True} if self.survey else {}  # the keys of the other sets' items stay as they were
+        pair["meta"] = {"dataset": self.name, "index": index, "seed": seed, "underwater": label, **survey,
+                        **self.extra_meta(), **pair.get("meta", {})}
         return pair
 
 

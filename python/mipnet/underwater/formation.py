@@ -31,12 +31,10 @@ import numpy as np
 from ..errors import ArgumentError, ShapeError
 from ..stereo.filters import box_sum, gaussian_blur
 from .color import linear_to_srgb, srgb_to_linear
-from .water import JERLOV_KD, WaterParams, resolve_params
+from .water import JERLOV_KD, REFERENCE_WIDTH, WaterParams, resolve_params
 
-__all__ = ["degrade", "texture_snr"]
+__all__ = ["degrade", "texture_snr", "direct_signal"]
 
-_REFERENCE_WIDTH = 1280.0
-_REFERENCE_FX = 700.0
 _EXPOSURE_MEAN = 0.2  # auto-exposure: mean linear luminance target (sRGB ~124) ...
 _EXPOSURE_HIGHLIGHT = 0.9  # ... unless that pushes the 99th percentile above this
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709 weights of linear RGB
@@ -127,22 +125,43 @@ def _range_blur(image: np.ndarray, sigma: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------- image formation
 
 
-def _radiance(clean_linear: np.ndarray, depth: np.ndarray, fx: float, params: WaterParams) -> np.ndarray:
-    """Noise-free underwater radiance of one view (linear, before exposure)."""
+def _illumination(params: WaterParams, z3: np.ndarray, vertical: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """E_c: sunlight dimmed over the vertical depth, plus the spot light at the camera (per channel)."""
     k_d = np.asarray(JERLOV_KD[params.water_type], dtype=np.float64)
-    beta_d = k_d + params.scattering
-    beta_b = np.asarray(params.backscatter_coef, dtype=np.float64)
-    z, below_camera, radius = _view_geometry(depth, fx)
-    z3 = z[..., None]
-    vertical = np.maximum(params.depth + below_camera, 0.0)[..., None]
     illumination = np.exp(-k_d * vertical)
     if params.artificial_light > 0:
         spot = np.exp(-((radius / params.light_cone) ** 2))[..., None]
         falloff = np.minimum(1.0, (_SPOT_REFERENCE_RANGE / z3) ** 2)
-        illumination = illumination + params.artificial_light * spot * falloff * np.exp(-beta_d * z3)
+        illumination = illumination + params.artificial_light * spot * falloff * np.exp(-params.attenuation() * z3)
+    return illumination
+
+
+def direct_signal(water: WaterParams, z) -> np.ndarray:
+    """The direct signal of a white scene point on the optical axis at range ``z`` (m), per channel:
+    ``E_c(z) * exp(-beta^D_c z)``, its illumination (sunlight at the camera's depth, plus the spot light) times
+    its transmission back to the camera, before forward scatter and exposure.
+
+    Shapes
+    ------
+    z: (N,); returns: (N, 3) float64.
+    """
+    z3 = np.maximum(np.asarray(z, dtype=np.float64), 1e-9)[:, None]
+    vertical = np.full(z3.shape, max(water.depth, 0.0))
+    return _illumination(water, z3, vertical, np.zeros(z3.shape[0])) * np.exp(-water.attenuation() * z3)
+
+
+def _radiance(clean_linear: np.ndarray, depth: np.ndarray, fx: float, params: WaterParams) -> np.ndarray:
+    """Noise-free underwater radiance of one view (linear, before exposure)."""
+    k_d = np.asarray(JERLOV_KD[params.water_type], dtype=np.float64)
+    beta_d = params.attenuation()
+    beta_b = np.asarray(params.backscatter_coef, dtype=np.float64)
+    z, below_camera, radius = _view_geometry(depth, fx)
+    z3 = z[..., None]
+    vertical = np.maximum(params.depth + below_camera, 0.0)[..., None]
+    illumination = _illumination(params, z3, vertical, radius)
     direct = (clean_linear * illumination * np.exp(-beta_d * z3)).astype(np.float32)
     width = depth.shape[1]
-    sigma = params.forward_scatter * z * width / _REFERENCE_WIDTH
+    sigma = params.forward_scatter * z * width / REFERENCE_WIDTH
     direct = _range_blur(direct, sigma)
     veil = np.asarray(params.veiling_light) * np.exp(-k_d * params.depth) * params.backscatter_strength
     backscatter = veil * (1.0 - np.exp(-beta_b * z3))
@@ -233,7 +252,7 @@ def degrade(left, right, disparity, preset="coastal", seed: int = 0, **params):
             f"degrade: expected (H, W, 3) images and an (H, W) disparity, got {left.shape}, {right.shape}, {disp.shape}"
         )
     width = left.shape[1]
-    fx = water.fx if water.fx is not None else _REFERENCE_FX * width / _REFERENCE_WIDTH
+    fx = water.focal_length(width)
     snow_rng, left_rng, right_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
     depth_left = _depth_from_disparity(disp, fx, water)
     depth_right = _warp_depth_to_right(depth_left, disp)
@@ -290,7 +309,7 @@ def texture_snr(left, disparity, preset="coastal", window: int = 9, texture_sigm
     if window < 1 or window % 2 == 0:
         raise ArgumentError(f"texture_snr: window must be a positive odd number, got {window}")
     width = left.shape[1]
-    fx = water.fx if water.fx is not None else _REFERENCE_FX * width / _REFERENCE_WIDTH
+    fx = water.focal_length(width)
     depth = _depth_from_disparity(disp, fx, water)
     clean = srgb_to_linear(left)
     radiance = _radiance(clean, depth, fx, water)

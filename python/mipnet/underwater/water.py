@@ -11,7 +11,10 @@ import numpy as np
 from ..errors import ArgumentError
 from ..random import log_uniform
 
-__all__ = ["WaterParams", "PRESETS", "JERLOV_KD", "random_water", "resolve_params"]
+__all__ = ["WaterParams", "PRESETS", "JERLOV_KD", "random_water", "resolve_params", "REFERENCE_FX", "REFERENCE_WIDTH"]
+
+REFERENCE_WIDTH = 1280.0  # ZED-like default calibration: fx = 700 px at 1280 px width, scaled with the width
+REFERENCE_FX = 700.0
 
 # Jerlov diffuse attenuation K_d (1/m) at 650 nm (R), 550 nm (G), 450 nm (B).
 JERLOV_KD: dict[str, tuple[float, float, float]] = {
@@ -96,6 +99,14 @@ class WaterParams:
             raise ValueError(f"need 0 < z_min < z_max, got {self.z_min}, {self.z_max}")
         if self.full_well <= 0 or self.read_noise < 0 or self.gain <= 0:
             raise ValueError("full_well and gain must be positive, read_noise non-negative")
+
+    def focal_length(self, width: int) -> float:
+        """Focal length in px for an image ``width`` px wide: ``fx``, or 700 px scaled by width / 1280."""
+        return self.fx if self.fx is not None else REFERENCE_FX * width / REFERENCE_WIDTH
+
+    def attenuation(self) -> np.ndarray:
+        """beta^D (R, G, B) in 1/m: Jerlov's K_d of ``water_type`` plus the flat ``scattering``."""
+        return np.asarray(JERLOV_KD[self.water_type], dtype=np.float64) + self.scattering
 
 
 PRESETS: dict[str, WaterParams] = {
