@@ -9,7 +9,7 @@ import os
 import pytest
 
 import mipnet.cli
-from mipnet.cli.train import _show_training_log
+from mipnet.cli.common import show_training_log
 from mipnet.errors import FormatError
 from mipnet.training.checkpoint import checkpoint_dir, load_latest_checkpoint
 
@@ -32,7 +32,7 @@ def test_a_skipped_checkpoint_is_a_warning_record(tmp_path, caplog):
 def test_the_train_command_shows_info_records_on_stderr_only_while_it_runs(capsys):
     logger = logging.getLogger("mipnet")
     level, handlers = logger.level, list(logger.handlers)
-    with _show_training_log():
+    with show_training_log():
         logging.getLogger("mipnet.training.fit").info("validation at step 7:\n  air epe 1.000")
         logging.getLogger("mipnet.training.fit").debug("not shown")
     logging.getLogger("mipnet.training.fit").info("after the command: not on stderr")

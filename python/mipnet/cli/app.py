@@ -1,6 +1,6 @@
-"""The ``mipnet`` command line: ``infer``, ``eval``, ``train``, ``info``, ``fetch``. Also ``python -m mipnet``.
+"""The ``mipnet`` command line: ``infer``, ``eval``, ``train``, ``adapt``, ``info``, ``fetch``. Also ``python -m mipnet``.
 
-One module a subcommand (:mod:`.infer`, :mod:`.eval`, :mod:`.train`, :mod:`.info`, :mod:`.fetch`), each
+One module a subcommand (:mod:`.infer`, :mod:`.eval`, :mod:`.train`, :mod:`.adapt`, :mod:`.info`, :mod:`.fetch`), each
 with ``add_parser(sub)`` and ``run(args)``; what they share is in :mod:`.common`. This module builds the
 parser and runs a command.
 
@@ -18,11 +18,11 @@ import sys
 import traceback
 from typing import Sequence
 
-from . import eval as eval_command, fetch, info, infer, train
+from . import adapt, eval as eval_command, fetch, info, infer, train
 from .common import EXIT_USAGE, USER_ERRORS, CommandLineError, Parser, describe, positive_int
 
 #: the subcommands, in the order ``mipnet --help`` lists them
-COMMANDS = (infer, info, eval_command, fetch, train)
+COMMANDS = (infer, info, eval_command, fetch, train, adapt)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,10 +9,13 @@ lists them at the end and exits with status :data:`EXIT_SOME_FAILED`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import logging
 import math
 import sys
 import traceback
+from collections.abc import Iterator
 from typing import Callable
 
 from ..errors import ArgumentError, MipnetError
@@ -192,3 +195,34 @@ class ImageSize(argparse.Action):
         if min(h, w) < MIN_SIZE:
             parser.error(f"argument {option_string}: {h}x{w} (HxW) is below the minimum {MIN_SIZE}x{MIN_SIZE}")
         setattr(namespace, self.dest, (h, w))
+
+
+class _StderrAboveProgressBar(logging.Handler):
+    """Writes each record's message to the current ``sys.stderr`` through ``tqdm.write``, which moves the
+    training progress bar out of the way and redraws it below."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:  # logging's contract: a handler reports its own failures
+            self.handleError(record)
+
+
+@contextlib.contextmanager
+def show_training_log() -> Iterator[None]:
+    """While ``mipnet train`` or ``mipnet adapt`` runs, the ``mipnet`` loggers' INFO and above (validation tables, a stop on a
+    signal, skipped checkpoints) go to stderr as their bare messages, as the command has always shown them."""
+    logger = logging.getLogger("mipnet")
+    handler = _StderrAboveProgressBar(logging.INFO)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    level = logger.level
+    logger.addHandler(handler)
+    if level == logging.NOTSET or level > logging.INFO:
+        logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)

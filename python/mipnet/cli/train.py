@@ -10,11 +10,8 @@ Settings resolve as preset < ``--config`` file < flags.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import logging
-import sys
-from collections.abc import Iterator
 
+from .common import show_training_log
 from ..training.config import NOISE_SOURCES, PRESETS, RESUMABLE_OVERRIDES, load_config_file, recipe_names, resolve_config
 
 # flags that map one-to-one onto TrainConfig fields
@@ -66,39 +63,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     return p
 
 
-class _StderrAboveProgressBar(logging.Handler):
-    """Writes each record's message to the current ``sys.stderr`` through ``tqdm.write``, which moves the
-    training progress bar out of the way and redraws it below."""
-
-    def emit(self, record: logging.LogRecord) -> None:
-        try:
-            from tqdm import tqdm
-
-            tqdm.write(self.format(record), file=sys.stderr)
-        except Exception:  # logging's contract: a handler reports its own failures
-            self.handleError(record)
-
-
-@contextlib.contextmanager
-def _show_training_log() -> Iterator[None]:
-    """While ``mipnet train`` runs, the ``mipnet`` loggers' INFO and above (validation tables, a stop on a
-    signal, skipped checkpoints) go to stderr as their bare messages, as the command has always shown them."""
-    logger = logging.getLogger("mipnet")
-    handler = _StderrAboveProgressBar(logging.INFO)
-    handler.setFormatter(logging.Formatter("%(message)s"))
-    level = logger.level
-    logger.addHandler(handler)
-    if level == logging.NOTSET or level > logging.INFO:
-        logger.setLevel(logging.INFO)
-    try:
-        yield
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(level)
-
-
 def run(args: argparse.Namespace) -> int:
-    with _show_training_log():
+    with show_training_log():
         return _run(args)
 
 

@@ -84,14 +84,16 @@ def _transform(augmentors: list):
     return transform
 
 
-class _StopRequest:
-    """SIGINT/SIGTERM set a flag; the loop checkpoints after the current step and returns."""
+class StopRequest:
+    """SIGINT/SIGTERM set a flag; the loop checkpoints after the current step and returns (shared by
+    ``mipnet train`` and ``mipnet adapt``; ``command`` names the one that reports the signal)."""
 
-    def __init__(self) -> None:
+    def __init__(self, command: str = "mipnet train") -> None:
         self.signal: int | None = None
+        self.command = command
 
     @contextlib.contextmanager
-    def installed(self) -> Iterator["_StopRequest"]:
+    def installed(self) -> Iterator["StopRequest"]:
         if threading_is_main():
             previous = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
         else:
@@ -106,7 +108,7 @@ class _StopRequest:
         if self.signal is not None:  # a second signal: stop now
             raise KeyboardInterrupt
         self.signal = signum
-        logger.warning("mipnet train: %s received: checkpointing after this step", signal.Signals(signum).name)
+        logger.warning("%s: %s received: checkpointing after this step", self.command, signal.Signals(signum).name)
 
 
 def threading_is_main() -> bool:
@@ -115,7 +117,7 @@ def threading_is_main() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _save_json(path: str, obj) -> None:
+def save_json(path: str, obj) -> None:
     with atomic_write(path, "w") as f:
         json.dump(obj, f, indent=2, sort_keys=True)
 
@@ -197,7 +199,7 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
         log.truncate_after(step)
     else:
         log.truncate_after(0)
-    _save_json(os.path.join(out, "config.json"), dataclasses.asdict(config))
+    save_json(os.path.join(out, "config.json"), dataclasses.asdict(config))
     loader.set_epoch(epoch, batch)
 
     model.train()
@@ -236,7 +238,7 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
     from tqdm.auto import tqdm
 
     records: list[dict] = []
-    stop = _StopRequest()
+    stop = StopRequest()
     bar = tqdm(total=target, initial=step, desc="train", unit="step", disable=not progress, file=sys.stderr,
                mininterval=1.0 if sys.stderr.isatty() else 30.0, dynamic_ncols=True)
     with stop.installed(), bar:
