@@ -32,7 +32,6 @@ import json
 import logging
 import math
 import os
-import sys
 import time
 from typing import Any, Sequence
 
@@ -54,7 +53,7 @@ from ..utils.data.dataloader import DataLoader
 from ..utils.data.dataset import Dataset
 from .augment import StereoAugmentor
 from .checkpoint import TrainState, list_checkpoints, load_latest_checkpoint, save_checkpoint
-from .fit import StopRequest, save_json
+from .fit import StopRequest, epochs_of, progress_bar, save_json
 from .log import TrainLog
 
 __all__ = ["AdaptConfig", "adapt", "adapt_loss", "anchor_penalty", "right_view_disparity", "pair_files",
@@ -409,21 +408,16 @@ def adapt(left_paths: str | Sequence[str] | None, right_paths: str | Sequence[st
                                         model_config=model.config.to_json()))
         model.save(os.path.join(out, "model.safetensors"), **_metadata(config, start_meta, step))
 
-    from tqdm.auto import tqdm
-
     records: list[dict] = []
     stop = StopRequest("mipnet adapt")
-    bar = tqdm(total=target, initial=step, desc="adapt", unit="step", disable=not progress, file=sys.stderr,
-               mininterval=1.0 if sys.stderr.isatty() else 30.0, dynamic_ncols=True)
+    bar = progress_bar("adapt", target, step, progress)
     with stop.installed(), bar:
-        batches = iter(loader)
+        batches = epochs_of(loader, epoch)
         while step < target and stop.signal is None:
             t_data = time.perf_counter()
-            sample = next(batches, None)
-            if sample is None:  # end of an epoch: the loader has moved on to the next one
-                epoch, batch = epoch + 1, 0
-                batches = iter(loader)
-                continue
+            sample_epoch, sample = next(batches)
+            if sample_epoch != epoch:  # the loader moved on to the next epoch, from its first batch
+                epoch, batch = sample_epoch, 0
             t0 = time.perf_counter()
             left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
             loss, parts = adapt_loss(model, left, right, config.iters, gamma=config.gamma,

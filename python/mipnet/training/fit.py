@@ -139,6 +139,24 @@ def _new_model(config: TrainConfig) -> MIPNet:
     return MIPNet()
 
 
+
+def progress_bar(desc: str, total: int, initial: int, progress: bool):
+    """The steps' progress bar on stderr (tqdm), refreshed every second on a terminal, every 30 s in a log."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc=desc, unit="step", disable=not progress, file=sys.stderr,
+                mininterval=1.0 if sys.stderr.isatty() else 30.0, dynamic_ncols=True)
+
+
+def epochs_of(loader: DataLoader, epoch: int) -> Iterator[tuple[int, dict]]:
+    """(epoch, batch) without end: the loader's batches, one epoch after the other, from where
+    ``loader.set_epoch`` put it (an epoch's iterator ends where the next one begins)."""
+    while True:
+        for sample in loader:
+            yield epoch, sample
+        epoch += 1
+
+
 def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: int | None = None,
         progress: bool = True, overrides: dict | None = None) -> list[dict]:
     """Trains MIPNet and returns the step records of this call.
@@ -235,21 +253,16 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
             best = score
             model.save(os.path.join(out, "best.safetensors"), **_weights_metadata(config, step, validation=table))
 
-    from tqdm.auto import tqdm
-
     records: list[dict] = []
     stop = StopRequest()
-    bar = tqdm(total=target, initial=step, desc="train", unit="step", disable=not progress, file=sys.stderr,
-               mininterval=1.0 if sys.stderr.isatty() else 30.0, dynamic_ncols=True)
+    bar = progress_bar("train", target, step, progress)
     with stop.installed(), bar:
-        batches = iter(loader)
+        batches = epochs_of(loader, epoch)
         while step < target and stop.signal is None:
             t_data = time.perf_counter()
-            sample = next(batches, None)
-            if sample is None:  # end of an epoch: the loader has moved on to the next one
-                epoch, batch = epoch + 1, 0
-                batches = iter(loader)
-                continue
+            sample_epoch, sample = next(batches)
+            if sample_epoch != epoch:  # the loader moved on to the next epoch, from its first batch
+                epoch, batch = sample_epoch, 0
             t0 = time.perf_counter()
             left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
             preds = model(left, right, iters=config.iters)
