@@ -32,7 +32,6 @@ import json
 import logging
 import math
 import os
-import time
 from typing import Any, Sequence
 
 import numpy as np
@@ -53,7 +52,7 @@ from ..utils.data.dataloader import DataLoader
 from ..utils.data.dataset import Dataset
 from .augment import StereoAugmentor
 from .checkpoint import TrainState, list_checkpoints, load_latest_checkpoint, save_checkpoint
-from .fit import StopRequest, epochs_of, progress_bar, save_json
+from .fit import Position, run_steps, save_json
 from .log import TrainLog
 
 __all__ = ["AdaptConfig", "adapt", "adapt_loss", "anchor_penalty", "right_view_disparity", "pair_files",
@@ -390,60 +389,39 @@ def adapt(left_paths: str | Sequence[str] | None, right_paths: str | Sequence[st
                         drop_last=True, num_workers=config.workers, seed=config.seed,
                         transform=_transform(consistent_augmentor(config.crop, config.augment)))
     log = TrainLog(os.path.join(out, "log.jsonl"))
-    step, epoch, batch = 0, 0, 0
+    position = Position()
     if state is not None:
         optimizer.load_state_dict(state.optimizer)
         default_generator().bit_generator.state = state.rng_state
-        step, epoch, batch = state.step, state.epoch, state.batch
-    log.truncate_after(step)
+        position = Position(state.step, state.epoch, state.batch)
+    log.truncate_after(position.step)
     save_json(os.path.join(out, "config.json"), dataclasses.asdict(config))
-    loader.set_epoch(epoch, batch)
+    loader.set_epoch(position.epoch, position.batch)
     model.train()
     model.freeze_bn()
 
     def checkpoint() -> None:
-        save_checkpoint(out, TrainState(step=step, epoch=epoch, batch=batch, model=model.state_dict(),
-                                        optimizer=optimizer.state_dict(), schedule={},
+        save_checkpoint(out, TrainState(step=position.step, epoch=position.epoch, batch=position.batch,
+                                        model=model.state_dict(), optimizer=optimizer.state_dict(), schedule={},
                                         rng_state=default_generator().bit_generator.state, config_json=config.to_json(),
                                         model_config=model.config.to_json()))
-        model.save(os.path.join(out, "model.safetensors"), **_metadata(config, start_meta, step))
+        model.save(os.path.join(out, "model.safetensors"), **_metadata(config, start_meta, position.step))
 
-    records: list[dict] = []
-    stop = StopRequest("mipnet adapt")
-    bar = progress_bar("adapt", target, step, progress)
-    with stop.installed(), bar:
-        batches = epochs_of(loader, epoch)
-        while step < target and stop.signal is None:
-            t_data = time.perf_counter()
-            sample_epoch, sample = next(batches)
-            if sample_epoch != epoch:  # the loader moved on to the next epoch, from its first batch
-                epoch, batch = sample_epoch, 0
-            t0 = time.perf_counter()
-            left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
-            loss, parts = adapt_loss(model, left, right, config.iters, gamma=config.gamma,
-                                     smoothness=config.smoothness, consistency=config.consistency, alpha=config.alpha)
-            drift = anchor_penalty(model, reference)
-            if config.anchor > 0:
-                loss = loss + drift * config.anchor
-            optimizer.zero_grad()
-            loss.backward()
-            grad_norm = clip_grad_norm_(model.parameters(), config.clip) if config.clip > 0 else float("nan")
-            optimizer.step()
-            step, batch = step + 1, batch + 1
-            record = {"step": step, "loss": loss.item(), **parts, "anchor": config.anchor * drift.item(),
-                      "drift": drift.item(), "lr": config.lr, "grad_norm": grad_norm,
-                      "seconds": time.perf_counter() - t0, "data_seconds": t0 - t_data}
-            del loss, drift
-            if not math.isfinite(record["loss"]):
-                raise FloatingPointError(f"mipnet adapt: loss became {record['loss']} at step {step}; "
-                                         f"the last checkpoint in {out}/checkpoint is from before")
-            log.append(record)
-            records.append(record)
-            bar.set_postfix(photo=f"{record['photometric']:.4f}", refresh=False)
-            bar.update(1)
-            if step % config.checkpoint_every == 0:
-                checkpoint()
-    checkpoint()
-    if stop.signal is not None:
-        logger.warning("mipnet adapt: stopped at step %d; continue with: mipnet adapt --resume --out %s", step, out)
-    return records
+    def adapt_step(sample: dict) -> dict:
+        left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
+        loss, parts = adapt_loss(model, left, right, config.iters, gamma=config.gamma,
+                                 smoothness=config.smoothness, consistency=config.consistency, alpha=config.alpha)
+        drift = anchor_penalty(model, reference)
+        if config.anchor > 0:
+            loss = loss + drift * config.anchor
+        optimizer.zero_grad()
+        loss.backward()
+        grad_norm = clip_grad_norm_(model.parameters(), config.clip) if config.clip > 0 else float("nan")
+        optimizer.step()
+        return {"loss": loss.item(), **parts, "anchor": config.anchor * drift.item(), "drift": drift.item(),
+                "lr": config.lr, "grad_norm": grad_norm}
+
+    return run_steps("mipnet adapt", position, target, loader, adapt_step, log=log, progress=progress,
+                     periodic=[(config.checkpoint_every, checkpoint)], checkpoint=checkpoint, out=out,
+                     resume_command=f"mipnet adapt --resume --out {out}",
+                     postfix=lambda r: {"photo": f"{r['photometric']:.4f}"})

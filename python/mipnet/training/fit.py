@@ -25,7 +25,7 @@ import os
 import signal
 import sys
 import time
-from typing import Iterator
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -157,6 +157,52 @@ def epochs_of(loader: DataLoader, epoch: int) -> Iterator[tuple[int, dict]]:
         epoch += 1
 
 
+@dataclasses.dataclass
+class Position:
+    """Where a run stands: its optimisation step, and the loader's epoch and batch within that epoch."""
+
+    step: int = 0
+    epoch: int = 0
+    batch: int = 0
+
+
+def run_steps(command: str, position: Position, target: int, loader: DataLoader, take_step: Callable[[dict], dict],
+              *, log: TrainLog, progress: bool, periodic: Sequence[tuple[int, Callable[[], None]]],
+              checkpoint: Callable[[], None], out: str, resume_command: str,
+              postfix: Callable[[dict], dict]) -> list[dict]:
+    """The step loop that ``fit`` and ``adapt`` share: until ``target`` or a stop signal, one ``take_step(batch)``
+    per loader batch (its record gets the step and the seconds spent), the record logged, each ``(period, hook)``
+    of ``periodic`` called every ``period`` steps, a checkpoint at the end; ``position`` follows along."""
+    records: list[dict] = []
+    stop = StopRequest(command)
+    bar = progress_bar(command.split()[-1], target, position.step, progress)
+    with stop.installed(), bar:
+        batches = epochs_of(loader, position.epoch)
+        while position.step < target and stop.signal is None:
+            t_data = time.perf_counter()
+            sample_epoch, sample = next(batches)
+            if sample_epoch != position.epoch:  # the loader moved on to the next epoch, from its first batch
+                position.epoch, position.batch = sample_epoch, 0
+            t0 = time.perf_counter()
+            body = take_step(sample)
+            position.step, position.batch = position.step + 1, position.batch + 1
+            record = {"step": position.step, **body, "seconds": time.perf_counter() - t0, "data_seconds": t0 - t_data}
+            if not math.isfinite(record["loss"]):
+                raise FloatingPointError(f"{command}: loss became {record['loss']} at step {position.step}; "
+                                         f"the last checkpoint in {out}/checkpoint is from before")
+            log.append(record)
+            records.append(record)
+            bar.set_postfix(**postfix(record), refresh=False)
+            bar.update(1)
+            for period, hook in periodic:
+                if position.step % period == 0:
+                    hook()
+    checkpoint()
+    if stop.signal is not None:
+        logger.warning("%s: stopped at step %d; continue with: %s", command, position.step, resume_command)
+    return records
+
+
 def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: int | None = None,
         progress: bool = True, overrides: dict | None = None) -> list[dict]:
     """Trains MIPNet and returns the step records of this call.
@@ -207,18 +253,16 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
     loader = DataLoader(dataset, batch_size=config.batch_size, shuffle=True, drop_last=True,
                         num_workers=config.workers, seed=config.seed, transform=_transform(augmentors))
     log = TrainLog(os.path.join(out, "log.jsonl"))
-    step, epoch, batch = 0, 0, 0
+    position = Position()
     if state is not None:
         model.load_state_dict(state.model)
         optimizer.load_state_dict(state.optimizer)
         schedule.load_state_dict(state.schedule)
         default_generator().bit_generator.state = state.rng_state
-        step, epoch, batch = state.step, state.epoch, state.batch
-        log.truncate_after(step)
-    else:
-        log.truncate_after(0)
+        position = Position(state.step, state.epoch, state.batch)
+    log.truncate_after(position.step)
     save_json(os.path.join(out, "config.json"), dataclasses.asdict(config))
-    loader.set_epoch(epoch, batch)
+    loader.set_epoch(position.epoch, position.batch)
 
     model.train()
     if config.freeze_bn:
@@ -229,11 +273,11 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
     sgbm_logged = any("val_sgbm" in r for r in previous)
 
     def checkpoint() -> None:
-        save_checkpoint(out, TrainState(step=step, epoch=epoch, batch=batch, model=model.state_dict(),
-                                        optimizer=optimizer.state_dict(), schedule=schedule.state_dict(),
-                                        rng_state=default_generator().bit_generator.state, config_json=config.to_json(),
-                                        model_config=model.config.to_json()))
-        model.save(os.path.join(out, "model.safetensors"), **_weights_metadata(config, step))
+        save_checkpoint(out, TrainState(step=position.step, epoch=position.epoch, batch=position.batch,
+                                        model=model.state_dict(), optimizer=optimizer.state_dict(),
+                                        schedule=schedule.state_dict(), rng_state=default_generator().bit_generator.state,
+                                        config_json=config.to_json(), model_config=model.config.to_json()))
+        model.save(os.path.join(out, "model.safetensors"), **_weights_metadata(config, position.step))
 
     def validate() -> None:
         nonlocal best, sgbm_logged
@@ -244,53 +288,30 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
         if not sgbm_logged:
             reference = validate_sgbm(val_sets)
             if reference is not None:
-                log.append({"step": step, "val_sgbm": reference})
+                log.append({"step": position.step, "val_sgbm": reference})
             sgbm_logged = True
-        log.append({"step": step, "val": table})
-        logger.info("%s", format_validation(step, table, reference))
+        log.append({"step": position.step, "val": table})
+        logger.info("%s", format_validation(position.step, table, reference))
         score = mean_epe(table)
         if score < best:
             best = score
-            model.save(os.path.join(out, "best.safetensors"), **_weights_metadata(config, step, validation=table))
+            model.save(os.path.join(out, "best.safetensors"), **_weights_metadata(config, position.step, validation=table))
 
-    records: list[dict] = []
-    stop = StopRequest()
-    bar = progress_bar("train", target, step, progress)
-    with stop.installed(), bar:
-        batches = epochs_of(loader, epoch)
-        while step < target and stop.signal is None:
-            t_data = time.perf_counter()
-            sample_epoch, sample = next(batches)
-            if sample_epoch != epoch:  # the loader moved on to the next epoch, from its first batch
-                epoch, batch = sample_epoch, 0
-            t0 = time.perf_counter()
-            left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
-            preds = model(left, right, iters=config.iters)
-            loss = sequence_loss(preds, sample["disparity"], sample["valid"], gamma=config.gamma, max_disp=config.max_disp)
-            optimizer.zero_grad()
-            loss.backward()
-            grad_norm = clip_grad_norm_(model.parameters(), config.clip)
-            lr = optimizer.param_groups[0]["lr"]
-            optimizer.step()
-            schedule.step()
-            step, batch = step + 1, batch + 1
-            record = {"step": step, "loss": loss.item(), "lr": lr, "grad_norm": grad_norm,
-                      **sequence_metrics(preds[-1], sample["disparity"], sample["valid"], config.max_disp),
-                      "seconds": time.perf_counter() - t0, "data_seconds": t0 - t_data}
-            del preds, loss
-            if not math.isfinite(record["loss"]):
-                raise FloatingPointError(f"mipnet train: loss became {record['loss']} at step {step}; "
-                                         f"the last checkpoint in {out}/checkpoint is from before")
-            log.append(record)
-            records.append(record)
-            bar.set_postfix(loss=f"{record['loss']:.3f}", epe=f"{record['epe']:.2f}", refresh=False)
-            bar.update(1)
-            if step % config.checkpoint_every == 0:
-                checkpoint()
-            if val_sets is not None and step % config.val_every == 0:
-                validate()
-    checkpoint()
-    if stop.signal is not None:
-        logger.warning("mipnet train: stopped at step %d; continue with: mipnet train --resume %s", step, out)
-    return records
+    def train_step(sample: dict) -> dict:
+        left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
+        preds = model(left, right, iters=config.iters)
+        loss = sequence_loss(preds, sample["disparity"], sample["valid"], gamma=config.gamma, max_disp=config.max_disp)
+        optimizer.zero_grad()
+        loss.backward()
+        grad_norm = clip_grad_norm_(model.parameters(), config.clip)
+        lr = optimizer.param_groups[0]["lr"]
+        optimizer.step()
+        schedule.step()
+        return {"loss": loss.item(), "lr": lr, "grad_norm": grad_norm,
+                **sequence_metrics(preds[-1], sample["disparity"], sample["valid"], config.max_disp)}
+
+    periodic = [(config.checkpoint_every, checkpoint)] + ([(config.val_every, validate)] if val_sets is not None else [])
+    return run_steps("mipnet train", position, target, loader, train_step, log=log, progress=progress,
+                     periodic=periodic, checkpoint=checkpoint, out=out, resume_command=f"mipnet train --resume {out}",
+                     postfix=lambda r: {"loss": f"{r['loss']:.3f}", "epe": f"{r['epe']:.2f}"})
 
