@@ -13,11 +13,11 @@ from mipnet.stereo.io import write_image
 require("skimage")
 
 
-def right_at_left_positions(pair):
-    """The right view sampled at (x - d, y) for every left pixel (linear in x)."""
-    d = pair["disparity"]
+def right_at_left_positions(pair, shift=0.0):
+    """The right view sampled at (x - d + shift, y) for every left pixel (linear in x)."""
+    d = pair["disparity"].astype(np.float64)
     rows, cols = np.indices(d.shape)
-    x = np.clip(cols - d, 0, d.shape[1] - 1.001)
+    x = np.clip(cols - d + shift, 0, d.shape[1] - 1.001)
     x0 = np.floor(x).astype(int)
     t = (x - x0)[..., None]
     right = pair["right"].astype(np.float64)
@@ -44,6 +44,19 @@ def test_valid_left_pixels_are_seen_in_the_right_view_at_their_disparity(seed):
     # where the right camera cannot see the left pixel (it projects outside), valid is False
     rows, cols = np.indices(d.shape)
     assert not valid[cols - d < 0].any()
+
+
+@pytest.mark.parametrize("seed", [0, 3, 8])
+def test_the_views_align_best_at_the_ground_truth_to_a_tenth_of_a_pixel(seed):
+    """A sub-pixel bias of the ground truth (say half a pixel) would teach every network trained on these pairs
+    that bias: the photometric error must be smallest at exactly x - d."""
+    pair = make_photo_pair(96, 160, seed, clean=True)
+
+    def median_error(shift):
+        return np.median(np.abs(right_at_left_positions(pair, shift) - pair["left"]).mean(axis=-1)[pair["valid"]])
+
+    at_truth = median_error(0.0)
+    assert at_truth < median_error(-0.1) and at_truth < median_error(0.1)
 
 
 def test_depth_edges_lie_on_the_photographs_edges():

@@ -10,7 +10,8 @@ A pair is made in four steps, all a deterministic function of (height, width, se
    photographs the network never saw.
 2. **A depth layout that follows the photograph's own edges.** Felzenszwalb's graph segmentation splits
    the image along its edges; adjacent segments of similar colour are merged into surfaces (a random
-   threshold sets how coarse). Every surface gets a disparity field, a plane or a gently curved
+   threshold sets how coarse), and a surface with almost no texture (a blank wall, sky) joins the textured
+   surface it shares the longest border with, so its disparity is one that texture reveals. Every surface gets a disparity field, a plane or a gently curved
    surface ``d = c + gx u + gy v + q (u^2 + v^2)`` about its centroid with ``|dd/dx| <= 0.4``; often a
    scene prior places large surfaces touching the top border far away and those touching the bottom on a
    ground plane (disparity growing downwards). Discontinuities of disparity therefore lie on edges of the
@@ -20,7 +21,7 @@ A pair is made in four steps, all a deterministic function of (height, width, se
    both views carry the blur of linear interpolation), its ground truth the surface's disparity there.
    The right view is a z-buffer over every stretch between neighbouring photo pixels of one surface
    (and across small steps of disparity between surfaces, as a camera's mixed pixels), each mapped to
-   ``u - d(u)``: nearer surfaces hide farther ones exactly as in a real second camera. Where the right
+   ``x_r = u - d(u) - s``: nearer surfaces hide farther ones exactly as in a real second camera. Where the right
    camera sees what the left one could not (disocclusions), another photograph's pixels fill in, as
    Watson et al. do, so the filled content is real but unmatched.
 4. **Two cameras.** Each view gets its own exposure, white balance, vignetting, slight blur and sensor
@@ -41,10 +42,12 @@ from .synthetic import EVAL_SEED_START, GeneratedStereo, check_seed, check_size
 
 __all__ = ["make_photo_pair", "PhotoStereo", "PHOTO_GENERATOR_VERSION"]
 
-PHOTO_GENERATOR_VERSION = "photo-pairs-1"
+PHOTO_GENERATOR_VERSION = "photo-pairs-2"
 _MAX_X_SLOPE = 0.4  # |dd/dx| bound of a surface: u -> u - d(u) stays increasing, stretch within [0.6, 1.4]
 _MIXED_STEP = 1.0  # a disparity step of at most this many px between neighbouring surfaces renders as mixed pixels
 _D_FLOOR = 0.25  # smallest disparity (px)
+_TEXTURE_STEP = 4.0 / 255.0  # a luminance step to a neighbour above this is texture (8-bit levels above JPEG noise)
+_TEXTURED_SHARE = 0.1  # a group with fewer textured pixels than this is textureless
 _STREAM = 0x5EED_F070  # the pair's random stream: default_rng([seed, _STREAM])
 
 
@@ -87,7 +90,41 @@ def _segments(image: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, 
             parent[max(ra, rb)] = min(ra, rb)
             groups -= 1
     group = np.unique([root(i) for i in range(count)], return_inverse=True)[1]
-    return labels, group
+    return labels, _merge_textureless(image, labels, group)
+
+
+def _textured_pixels(image: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose luminance changes by more than _TEXTURE_STEP to a horizontal or vertical
+    neighbour (the cue a matcher can lock on; JPEG-smooth walls and sky stay below it)."""
+    luma = image @ np.array([0.299, 0.587, 0.114])
+    step = np.zeros(luma.shape)
+    # a pixel's step: the larger of |I(x+1) - I(x)| and |I(y+1) - I(y)|, attributed to (y, x)
+    step[:, :-1] = np.abs(np.diff(luma, axis=1))
+    step[:-1] = np.maximum(step[:-1], np.abs(np.diff(luma, axis=0)))
+    return step > _TEXTURE_STEP
+
+
+def _merge_textureless(image: np.ndarray, labels: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """``group`` with every textureless group (fewer than _TEXTURED_SHARE of its pixels textured) joined to the
+    textured group it shares the longest border with, so that its disparity continues a surface whose texture
+    shows it. A random plane of its own would be a disparity no view could reveal where it lies behind its
+    neighbours (its borders then belong to them)."""
+    grouped = group[labels]
+    groups = int(group.max()) + 1
+    share = np.bincount(grouped.ravel(), _textured_pixels(image).ravel(), groups) / np.maximum(
+        np.bincount(grouped.ravel(), minlength=groups), 1)
+    textured = share >= _TEXTURED_SHARE
+    if textured.all() or not textured.any():
+        return group
+    # border length between groups a and b: the count of horizontal and vertical pixel edges from a to b
+    pairs = np.concatenate([np.stack([grouped[:, :-1].ravel(), grouped[:, 1:].ravel()], 1),
+                            np.stack([grouped[:-1].ravel(), grouped[1:].ravel()], 1)])
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    border = np.zeros((groups, groups))
+    np.add.at(border, (pairs[:, 0], pairs[:, 1]), 1.0)
+    border = (border + border.T) * textured[None, :]
+    host = np.where(~textured & (border.max(axis=1) > 0), border.argmax(axis=1), np.arange(groups))
+    return np.unique(host[group], return_inverse=True)[1]
 
 
 def _centroids(labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,8 +149,7 @@ class _Layout:
         grouped = group[labels]
         g_pixels, g_cx, g_cy = _centroids(grouped, groups)
         d_far = d_max * rng.uniform(0.005, 0.15)
-        # log-uniform base disparity (depth log-uniform): small and medium disparities dominate
-        c = np.exp(rng.uniform(np.log(max(d_far, _D_FLOOR)), np.log(d_max), groups))
+        c = _base_disparities(grouped, g_pixels, rng, max(d_far, _D_FLOOR), d_max)
         gx = rng.uniform(-1.0, 1.0, groups) * rng.uniform(0.0, 0.25)
         gy = rng.uniform(-1.0, 1.0, groups) * rng.uniform(0.0, 0.3)
         q = np.where(rng.random(groups) < 0.3, rng.normal(0.0, 1.6e-3, groups) * d_max / max(height, width), 0.0)
@@ -125,8 +161,8 @@ class _Layout:
         self.c, self.gx, self.gy, self.q = c[group], gx[group], gy[group], q[group]
         # some segments of moderate size are objects in front of their group, with a plane of their own
         pixels, s_cx, s_cy = _centroids(labels, count)
-        moderate = (pixels > 2e-4 * labels.size) & (pixels < 0.08 * labels.size)
-        objects = moderate & (rng.random(count) < rng.uniform(0.0, 0.25))
+        moderate = (pixels > 2e-3 * labels.size) & (pixels < 0.08 * labels.size)
+        objects = moderate & (rng.random(count) < rng.uniform(0.0, 0.1))
         behind = self(np.arange(count), s_cx, s_cy)
         self.cx, self.cy = np.where(objects, s_cx, self.cx), np.where(objects, s_cy, self.cy)
         self.c = np.where(objects, np.minimum(behind * np.exp(rng.uniform(0.1, 0.8, count)) + 1.0, d_max), self.c)
@@ -164,6 +200,36 @@ class _Layout:
         return np.clip(d, _D_FLOOR, self.d_max)
 
 
+def _base_disparities(grouped: np.ndarray, pixels: np.ndarray, rng: np.random.Generator, d_low: float,
+                      d_high: float) -> np.ndarray:
+    """Each group's disparity at its centroid, correlated between neighbours as the parts of real objects are.
+
+    The largest group draws log-uniformly in [d_low, d_high] (depth log-uniform); the others follow in
+    breadth-first order over the groups' adjacency, each from the neighbour it was reached from: usually a
+    small step (a crease or a slight depth change, ``log d`` moves by N(0, 0.08)), with probability 0.35 a
+    depth discontinuity (``log d`` moves by up to +-1.2). Independent draws per group would cut every object
+    into pieces at unrelated depths, each piece framed by occlusions."""
+    groups = len(pixels)
+    adjacent = np.zeros((groups, groups), bool)
+    adjacent[grouped[:, :-1].ravel(), grouped[:, 1:].ravel()] = True
+    adjacent[grouped[:-1].ravel(), grouped[1:].ravel()] = True
+    adjacent |= adjacent.T
+    log_d = np.full(groups, np.nan)
+    start = int(np.argmax(pixels))
+    log_d[start] = rng.uniform(np.log(d_low), np.log(d_high))
+    queue = [start]
+    while queue:
+        parent = queue.pop(0)
+        for child in np.flatnonzero(adjacent[parent] & np.isnan(log_d)):
+            step = rng.uniform(-1.2, 1.2) if rng.random() < 0.35 else rng.normal(0.0, 0.08)
+            log_d[child] = np.clip(log_d[parent] + step, np.log(d_low), np.log(d_high))
+            queue.append(int(child))
+    # groups not connected to the largest (none in a segmentation of one image) draw on their own
+    unreached = np.isnan(log_d)
+    log_d[unreached] = rng.uniform(np.log(d_low), np.log(d_high), int(unreached.sum()))
+    return np.exp(log_d)
+
+
 def _bound_slope(labels: np.ndarray, cx: np.ndarray, gx: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``gx`` and ``q`` scaled so that |dd/dx| = |gx + 2 q (u - cx)| <= _MAX_X_SLOPE over each label's pixels."""
     u = np.indices(labels.shape)[1].ravel()
@@ -173,8 +239,12 @@ def _bound_slope(labels: np.ndarray, cx: np.ndarray, gx: np.ndarray, q: np.ndarr
     return gx * scale, q * scale
 
 
-def _render_right(photo: np.ndarray, labels: np.ndarray, layout: _Layout, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """The right view over columns 0..width-1 and its z-buffer disparity (-inf where nothing was seen)."""
+def _render_right(photo: np.ndarray, labels: np.ndarray, layout: _Layout, width: int,
+                  offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """The right view over columns 0..width-1 and its z-buffer disparity (-inf where nothing was seen).
+
+    Both views share the sub-pixel ``offset`` s: left pixel x shows photo point u = x + s, right pixel x_r the
+    point u with u - d(u) = x_r + s, so a point's two images lie d(u) apart, as the ground truth says."""
     height, span = labels.shape
     v, u = np.indices((height, span - 1))
     k0, k1 = labels[:, :-1], labels[:, 1:]
@@ -184,8 +254,8 @@ def _render_right(photo: np.ndarray, labels: np.ndarray, layout: _Layout, width:
     # one surface: both ends on it; across surfaces: a small step renders as mixed pixels, a large one is a hole
     d1 = np.where(same, layout(k0, u + 1.0, v), d1)
     rendered = same | (np.abs(d0 - d1) <= _MIXED_STEP)
-    # the stretch between photo pixels u and u + 1 lands on right x in [a, b]: x_r = u - d(u)
-    a, b = u - d0, u + 1.0 - d1
+    # the stretch between photo pixels u and u + 1 lands on right x in [a, b]: x_r = u - d(u) - s
+    a, b = u - d0 - offset, u + 1.0 - d1 - offset
     cand_rows, cand_x, cand_d, cand_colour = [], [], [], []
     first = np.ceil(a)
     for step in range(3):  # b - a <= 1 + _MAX_X_SLOPE + _MIXED_STEP < 3
@@ -280,7 +350,7 @@ def make_photo_pair(height: int, width: int, seed: int, *, max_disparity: float 
     left = (1 - offset) * photo[:, :width] + offset * photo[:, 1:width + 1]
     owner = labels[rows, np.rint(u).astype(np.int64)]
     disparity = layout(owner, u, rows)
-    right, zbuffer = _render_right(photo, labels, layout, width)
+    right, zbuffer = _render_right(photo, labels, layout, width, offset)
     holes = ~np.isfinite(zbuffer)
     if holes.any():
         filler, _ = _photo_crop(rng, height, width, held_out=seed >= EVAL_SEED_START)
