@@ -19,12 +19,10 @@ from collections.abc import Iterator
 from typing import Callable
 
 from ..errors import ArgumentError, MipnetError
+from ..inference.failures import USER_ERRORS, naming
 
 UNTRAINED_SEED = 0
 
-#: What a user can cause (bad files, options, sizes, too little memory): one line, exit status 2.
-#: Anything else is a bug in mipnet and keeps its traceback.
-USER_ERRORS = (MipnetError, OSError, MemoryError)
 EXIT_USAGE, EXIT_SOME_FAILED = 2, 1
 
 
@@ -56,32 +54,15 @@ def require_module(module: str, package: str, needed_for: str, instead: str = ""
         raise ArgumentError(f"{needed_for} needs the {module} module: pip install {package}{alternative}") from None
 
 
-def progress_bar(total: int, label: str):
-    """A tqdm bar on stderr (pairs done, rate, ETA); on a non-terminal it updates at most every 30 s."""
+def progress_bar(total: int | None, label: str, unit: str = "pair"):
+    """A tqdm bar on stderr (``unit``s done, rate, ETA); on a non-terminal it updates at most every 30 s."""
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=label, unit="pair", file=sys.stderr, dynamic_ncols=True,
+    return tqdm(total=total, desc=label, unit=unit, file=sys.stderr, dynamic_ncols=True,
                 mininterval=0.5 if sys.stderr.isatty() else 30.0)
 
 
 # ---- failure reporting ----------------------------------------------------------------------------
-
-
-def describe(error: BaseException) -> str:
-    """A user error as one line of text that names the file involved."""
-    if isinstance(error, OSError) and error.filename is not None:
-        text = f"{error.filename}: {error.strerror or error}"
-    elif isinstance(error, MemoryError) and not isinstance(error, MipnetError):
-        text = f"out of memory ({error or 'an allocation failed'})"
-    else:
-        text = str(error) or type(error).__name__
-    return " ".join(text.split())
-
-
-def naming(files: tuple[str, ...], error: BaseException) -> str:
-    """:func:`describe` of an error met on ``files``, prefixed with them unless it names one already."""
-    message = describe(error)
-    return message if any(f in message for f in files) else f"{' + '.join(files)}: {message}"
 
 
 class PairError(MipnetError):
@@ -105,8 +86,12 @@ class Failures:
     def add(self, files: tuple[str, ...], error: BaseException) -> None:
         if self.debug:
             traceback.print_exc()
-        self.items[files] = naming(files, error)
-        print(f"{self.command}: skipped {self.items[files]}", file=sys.stderr)
+        self.record(files, naming(files, error))
+
+    def record(self, files: tuple[str, ...], message: str) -> None:
+        """A failure described elsewhere (by a Ray actor, :mod:`mipnet.distributed.infer`)."""
+        self.items[files] = message
+        print(f"{self.command}: skipped {message}", file=sys.stderr)
 
     def report(self, total: int) -> int:
         """Lists the failures; the exit status (0 if none)."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 
 from .common import show_training_log
+from .distributed import add_ray_arguments, trainer
 from ..training.config import NOISE_SOURCES, PRESETS, RESUMABLE_OVERRIDES, load_config_file, recipe_names, resolve_config
 
 # flags that map one-to-one onto TrainConfig fields
@@ -47,7 +48,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--val-data", metavar="SPEC", help="also validate on this dataset spec")
     p.add_argument("--checkpoint-every", type=int, metavar="K",
                    help="write the resumable checkpoint every K steps (TrainConfig default 100)")
-    p.add_argument("--workers", type=int, help="data-loading worker processes")
+    p.add_argument("--workers", type=int, help="data-loading worker processes; with --ray: the Ray actors that share "
+                                               "each step's --batch-size (default: one per node)")
     p.add_argument("--no-augment", dest="augment", action="store_false", default=None, help="crop only")
     p.add_argument("--spatial-scale", type=float, nargs=2, metavar=("LO", "HI"),
                    help="log2 range of the scale augmentation (default -0.2 0.4, RAFT-Stereo's)")
@@ -59,6 +61,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--freeze-bn", dest="freeze_bn", action="store_true", default=None,
                    help="keep BatchNorm statistics fixed (eval mode) while training, as RAFT-Stereo fine-tunes")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_ray_arguments(p)
     p.set_defaults(func=run)
     return p
 
@@ -70,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from ..errors import ArgumentError
-    from ..training.fit import fit
+
+    fit = trainer(args)  # mipnet.training.fit.fit, or on Ray with --ray
 
     if args.resume:
         given = [f"--{f.replace('_', '-')}" for f in _FIELDS + ("augment", "freeze_bn", "config", "preset", "out")

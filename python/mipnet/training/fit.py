@@ -12,6 +12,10 @@ A run lives in one folder::
 exactly as if it had never stopped: same data order, augmentation, gamma draws, optimiser state and
 schedule, so the losses and weights are bitwise those of an uninterrupted run. SIGINT and SIGTERM end
 the current step, write a checkpoint and return.
+
+The forward and backward pass of a step is ``gradients(model, batch, config)`` (:func:`backward_pass` by
+default); :func:`mipnet.distributed.fit` passes one that splits the batch over Ray actors. Everything else (the
+data, the clipping, the AdamW step, the schedule, the checkpoints) stays on this process.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ import numpy as np
 from .._core import __version__
 from ..utils.files import atomic_write
 from ..utils.data.dataloader import DataLoader
-from ..errors import ArgumentError
+from ..errors import ArgumentError, MipnetError
 from ..model.losses import sequence_loss, sequence_metrics
 from ..model.network import MIPNet, load
 from ..optim import AdamW, OneCycleLR, clip_grad_norm_
@@ -82,6 +86,11 @@ def _transform(augmentors: list):
         return {k: out[k] for k in ("left", "right", "disparity", "valid")}
 
     return transform
+
+
+class StepFailed(MipnetError):
+    """A step that failed before it changed the run's state (a distributed worker was lost): the step loop
+    writes a checkpoint at the current position, which resumes the run exactly, and re-raises."""
 
 
 class StopRequest:
@@ -184,7 +193,12 @@ def run_steps(command: str, position: Position, target: int, loader: DataLoader,
             if sample_epoch != position.epoch:  # the loader moved on to the next epoch, from its first batch
                 position.epoch, position.batch = sample_epoch, 0
             t0 = time.perf_counter()
-            body = take_step(sample)
+            try:
+                body = take_step(sample)
+            except StepFailed as error:
+                checkpoint()
+                raise StepFailed(f"{command}: step {position.step + 1} failed: {error}; the run is saved at step "
+                                 f"{position.step}: continue with {resume_command}") from error
             position.step, position.batch = position.step + 1, position.batch + 1
             record = {"step": position.step, **body, "seconds": time.perf_counter() - t0, "data_seconds": t0 - t_data}
             if not math.isfinite(record["loss"]):
@@ -203,8 +217,43 @@ def run_steps(command: str, position: Position, target: int, loader: DataLoader,
     return records
 
 
+def backward_pass(model: MIPNet, sample: dict, config: TrainConfig, *, disp_init: np.ndarray | None = None,
+                  weight: float = 1.0) -> tuple[float, np.ndarray]:
+    """The forward and backward pass of one training batch on this process: ``weight`` times the sequence loss
+    (architecture.md §3.1) is back-propagated into the parameters' ``.grad``.
+
+    Parameters
+    ----------
+    model : MIPNet
+        In training mode.
+    sample : dict
+        ``left``, ``right`` (N, H, W, 3) and ``disparity``, ``valid`` (N, H, W), as the training loader gives them.
+    config : TrainConfig
+        The run's ``iters``, ``gamma`` and ``max_disp``.
+    disp_init : numpy.ndarray, optional
+        (N, 1, H/16, W/16) initial disparities instead of the model's draw from the global generator.
+    weight : float
+        The share of this batch in a larger one whose loss is the mean over all its valid pixels.
+
+    Returns
+    -------
+    loss : float
+        ``weight`` times the batch's loss.
+    final : numpy.ndarray
+        The last prediction (N, 1, H, W), for the step's metrics.
+    """
+    left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
+    preds = model(left, right, iters=config.iters, disp_init=disp_init)
+    loss = sequence_loss(preds, sample["disparity"], sample["valid"], gamma=config.gamma, max_disp=config.max_disp)
+    if weight != 1.0:
+        loss = loss * weight
+    loss.backward()
+    return loss.item(), preds[-1].numpy()
+
+
 def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: int | None = None,
-        progress: bool = True, overrides: dict | None = None) -> list[dict]:
+        progress: bool = True, overrides: dict | None = None,
+        gradients: Callable[[MIPNet, dict, TrainConfig], tuple[float, np.ndarray]] = backward_pass) -> list[dict]:
     """Trains MIPNet and returns the step records of this call.
 
     Parameters
@@ -222,6 +271,10 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
     overrides : dict, optional
         With ``resume``: settings that may change between sessions without changing results
         (:data:`mipnet.training.config.RESUMABLE_OVERRIDES`).
+    gradients : callable
+        ``gradients(model, batch, config) -> (loss, final prediction)`` leaves the batch's gradients in the
+        parameters' ``.grad`` (default :func:`backward_pass`, on this process). One that raises
+        :class:`StepFailed` stops the run after a checkpoint at the current position.
 
     Each validation's table is logged at INFO on the ``mipnet.training.fit`` logger, a stop on SIGINT or
     SIGTERM at WARNING (``mipnet train`` shows both on stderr).
@@ -298,17 +351,14 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
             model.save(os.path.join(out, "best.safetensors"), **_weights_metadata(config, position.step, validation=table))
 
     def train_step(sample: dict) -> dict:
-        left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
-        preds = model(left, right, iters=config.iters)
-        loss = sequence_loss(preds, sample["disparity"], sample["valid"], gamma=config.gamma, max_disp=config.max_disp)
         optimizer.zero_grad()
-        loss.backward()
+        loss, final = gradients(model, sample, config)
         grad_norm = clip_grad_norm_(model.parameters(), config.clip)
         lr = optimizer.param_groups[0]["lr"]
         optimizer.step()
         schedule.step()
-        return {"loss": loss.item(), "lr": lr, "grad_norm": grad_norm,
-                **sequence_metrics(preds[-1], sample["disparity"], sample["valid"], config.max_disp)}
+        return {"loss": loss, "lr": lr, "grad_norm": grad_norm,
+                **sequence_metrics(final, sample["disparity"], sample["valid"], config.max_disp)}
 
     periodic = [(config.checkpoint_every, checkpoint)] + ([(config.val_every, validate)] if val_sets is not None else [])
     return run_steps("mipnet train", position, target, loader, train_step, log=log, progress=progress,
