@@ -5,9 +5,12 @@
                                  [--profile]
 
 Engines: ``mipnet``; ``torch`` (eager, the reference model of tests_py/reference); ``openvino`` (fp32
-hint) and ``onnxruntime`` (CPU), both running the torch reference exported by ``torch.onnx`` (opset 17).
-OpenVINO and onnxruntime are bench extras (``pip install ".[bench]"``); an engine that is not
-installed is listed as such. Eval rows time the forward pass (6+6 iterations) after one untimed run;
+hint) and ``onnxruntime`` (CPU), both running mipnet's own ONNX export of the same weights
+(``mipnet.export_onnx``, opset 17, fixed size, with the ``disp_init`` input so that every engine starts
+from the same field; docs/deployment.md). OpenVINO and onnxruntime are bench extras
+(``pip install ".[bench]"``); an engine that is not installed is listed as such. The weights are the
+torch reference's initialisation (seed 0) when torch is among the engines, else mipnet's own (seed 0),
+so that ``--engines mipnet onnxruntime openvino`` runs without torch and outside the source tree. Eval rows time the forward pass (6+6 iterations) after one untimed run;
 train rows time one step (forward, sequence loss, backward, AdamW) for mipnet and torch. Each
 measurement runs in a fresh subprocess that imports only its own engine (mipnet reads the reference's
 initial weights from a file), so its peak resident memory (ru_maxrss) is that engine's alone.
@@ -145,29 +148,28 @@ torch.manual_seed(0)
 np.savez(a["weights"], **{k: v.numpy() for k, v in MIPNetTorch().state_dict().items()})
 """
 
-# Exports the torch reference's eval forward (fixed size, iterations unrolled) to ONNX, opset 17.
+# Without torch: mipnet's own initial weights (seed 0), in the same file format.
+_WEIGHTS_MIPNET = r"""
+import json, sys
+import numpy as np
+import mipnet
+a = json.loads(sys.argv[1])
+mipnet.manual_seed(0)
+np.savez(a["weights"], **mipnet.MIPNet().state_dict())
+"""
+
+# Exports mipnet's eval forward with the bench weights (fixed size, iterations unrolled, disp_init an input) to
+# ONNX, opset 17, with mipnet.export_onnx (docs/deployment.md).
 _EXPORT = r"""
 import json, sys
-import torch
+import numpy as np
+import mipnet
 a = json.loads(sys.argv[1])
-sys.path.insert(0, a["ref_dir"])
-from reference import MIPNetTorch
-torch.manual_seed(0)
-ref = MIPNetTorch().eval()
-n, h, w, iters = a["n"], a["h"], a["w"], tuple(a["iters"])
-
-class Eval(torch.nn.Module):
-    def __init__(self):
-        super().__init__()
-        self.ref = ref
-
-    def forward(self, left, right, disp_init):
-        return self.ref(left, right, iters=iters, disp_init=disp_init)
-
-args = (torch.zeros(n, 3, h, w), torch.zeros(n, 3, h, w), torch.ones(n, 1, h // 16, w // 16))
-with torch.no_grad():
-    torch.onnx.export(Eval(), args, a["onnx"], opset_version=17, input_names=["left", "right", "disp_init"],
-                      output_names=["disparity"], dynamo=False)
+model = mipnet.MIPNet()
+with np.load(a["weights"]) as f:
+    model.load_state_dict({k: f[k] for k in f.files})
+mipnet.export_onnx(model.eval(), a["onnx"], size=(a["h"], a["w"]), batch=a["n"], iters=tuple(a["iters"]),
+                   disp_init_input=True)
 """
 
 
@@ -203,7 +205,7 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
     slows every engine alike; the table gives the median seconds and, with several rounds, the
     range."""
     ref_dir = reference_dir()
-    if ref_dir is None:
+    if ref_dir is None and "torch" in engines:
         print(f"mipnet.bench model: no torch reference found: {REFERENCE_HINT}", file=sys.stderr)
         return 1
     missing = [e for e in engines if not _installed(e)]
@@ -217,9 +219,9 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
         print(f"not installed (pip install \".[bench]\"): {', '.join(missing)}")
     rows, status = [], 0
     with tempfile.TemporaryDirectory(prefix="mipnet-bench-") as tmp:
-        base = {"ref_dir": str(ref_dir), "threads": threads, "warmup": warmup, "runs": 1, "profile": False,
+        base = {"ref_dir": str(ref_dir or ""), "threads": threads, "warmup": warmup, "runs": 1, "profile": False,
                 "weights": os.path.join(tmp, "weights.npz")}
-        err = _child(_WEIGHTS, base, threads).get("error")
+        err = _child(_WEIGHTS if "torch" in engines else _WEIGHTS_MIPNET, base, threads).get("error")
         if err:
             print(f"mipnet.bench model: could not build the reference weights: {err}", file=sys.stderr)
             return 1
@@ -229,7 +231,7 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
             if {"openvino", "onnxruntime"} & set(engines):
                 err = _child(_EXPORT, {**case, "onnx": onnx}, threads).get("error")
                 if err:
-                    print(f"torch.onnx export at {h}x{w} failed: {err}", file=sys.stderr)
+                    print(f"mipnet.export_onnx at {h}x{w} failed: {err}", file=sys.stderr)
             outs = {e: os.path.join(tmp, f"{e}_{h}x{w}.npy") for e in engines}
             results = _rounds(rounds, engines, lambda e: {**case, "engine": e, "onnx": onnx, "out": outs[e]},
                               threads, f"eval {h}x{w}")
