@@ -13,7 +13,7 @@ from mipnet.cli.app import build_parser
 from mipnet.data.synthetic import make_pair
 from mipnet.stereo import io
 
-COMMANDS = ("infer", "eval", "train", "adapt", "info", "fetch")
+COMMANDS = ("infer", "eval", "train", "adapt", "info", "fetch", "export")
 
 
 def _subparsers(parser):

@@ -15,6 +15,8 @@ DOCUMENTED = [
     "mipnet.MIPNet", "mipnet.MIPNet.pretrained", "mipnet.MIPNetConfig", "mipnet.load", "mipnet.match_confidence",
     "mipnet.Tensor", "mipnet.tensor", "mipnet.no_grad", "mipnet.enable_grad", "mipnet.is_grad_enabled",
     "mipnet.manual_seed", "mipnet.set_num_threads", "mipnet.get_num_threads", "mipnet.__version__",
+    "mipnet.Stream", "mipnet.rectify", "mipnet.export_onnx", "mipnet.data.make_sequence",
+    "mipnet.distributed.infer_dataset", "mipnet.distributed.fit", "mipnet.model.MIPNet.forward_with_state",
     # the engine at torch's paths
     "mipnet.nn.Module", "mipnet.nn.Parameter", "mipnet.nn.Conv2d", "mipnet.nn.BatchNorm2d", "mipnet.nn.InstanceNorm2d",
     "mipnet.nn.Sequential", "mipnet.nn.init", "mipnet.nn.utils.clip_grad_norm_", "mipnet.nn.functional",

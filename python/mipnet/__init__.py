@@ -12,7 +12,8 @@ The package has two layers (docs/architecture.md §5; enforced by import-linter,
   :mod:`~mipnet.nn`, :mod:`~mipnet.optim`, :mod:`~mipnet.random`, :mod:`~mipnet.profiler`,
   :mod:`~mipnet.serialization`, :mod:`~mipnet.utils` and the compiled kernels ``mipnet._core``;
 * the application, one concern a folder: :mod:`~mipnet.model`, :mod:`~mipnet.stereo`,
-  :mod:`~mipnet.underwater`, :mod:`~mipnet.data`, :mod:`~mipnet.training`, :mod:`~mipnet.cli`,
+  :mod:`~mipnet.underwater`, :mod:`~mipnet.data`, :mod:`~mipnet.training`, :mod:`~mipnet.inference`,
+  :mod:`~mipnet.distributed` (on Ray), :mod:`~mipnet.cli`,
   :mod:`~mipnet.bench`.
 """
 
@@ -27,8 +28,11 @@ from .tensor import Tensor, tensor
 from .random import manual_seed
 from . import autograd, ops, nn, optim, profiler, random, serialization, utils
 from . import model, stereo, underwater, data, training
-from .model import MIPNet, MIPNetConfig, load
+from . import inference, distributed  # mipnet.distributed imports Ray only when it runs (the [ray] extra)
+from .model import MIPNet, MIPNetConfig, Stream, load
 from .stereo import match_confidence
+from .stereo.rectify import rectify
+from .export import export_onnx
 
 __version__ = _core.__version__
 
@@ -66,7 +70,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'mipnet' has no attribute {name!r}")
 
 
-__all__ = ["MIPNet", "MIPNetConfig", "load", "match_confidence", "Tensor", "tensor", "no_grad", "enable_grad",
-           "is_grad_enabled", "manual_seed", "set_num_threads", "get_num_threads", "__version__",
+__all__ = ["MIPNet", "MIPNetConfig", "Stream", "load", "match_confidence", "Tensor", "tensor", "no_grad", "enable_grad",
+           "is_grad_enabled", "manual_seed", "set_num_threads", "get_num_threads", "__version__", "rectify", "export_onnx",
            "autograd", "ops", "nn", "optim", "profiler", "random", "serialization", "utils", "errors",
-           "model", "stereo", "underwater", "data", "training"]
+           "model", "stereo", "underwater", "data", "training", "inference", "distributed"]

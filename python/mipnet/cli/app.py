@@ -1,6 +1,6 @@
-"""The ``mipnet`` command line: ``infer``, ``eval``, ``train``, ``adapt``, ``info``, ``fetch``. Also ``python -m mipnet``.
+"""The ``mipnet`` command line: ``infer``, ``eval``, ``train``, ``adapt``, ``info``, ``fetch``, ``export``. Also ``python -m mipnet``.
 
-One module a subcommand (:mod:`.infer`, :mod:`.eval`, :mod:`.train`, :mod:`.adapt`, :mod:`.info`, :mod:`.fetch`), each
+One module a subcommand (:mod:`.infer`, :mod:`.eval`, :mod:`.train`, :mod:`.adapt`, :mod:`.info`, :mod:`.fetch`, :mod:`.export`), each
 with ``add_parser(sub)`` and ``run(args)``; what they share is in :mod:`.common`. This module builds the
 parser and runs a command.
 
@@ -18,11 +18,12 @@ import sys
 import traceback
 from typing import Sequence
 
-from . import adapt, eval as eval_command, fetch, info, infer, train
-from .common import EXIT_USAGE, USER_ERRORS, CommandLineError, Parser, describe, positive_int
+from . import adapt, eval as eval_command, export, fetch, info, infer, train
+from ..inference.failures import describe
+from .common import EXIT_USAGE, USER_ERRORS, CommandLineError, Parser, positive_int
 
 #: the subcommands, in the order ``mipnet --help`` lists them
-COMMANDS = (infer, info, eval_command, fetch, train, adapt)
+COMMANDS = (infer, info, eval_command, fetch, train, adapt, export)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,6 +4,7 @@
     mipnet eval --dataset survey-underwater --preset turbid --n 50 --size 384 512   # the scene within visibility
     mipnet eval --dataset kitti2015 --root /data/kitti --out kitti.jsonl     # rows written as pairs are scored
     mipnet eval --dataset motorcycle --methods mipnet                       # without OpenCV
+    mipnet eval --dataset sequence --n 10 --frames 16                       # video: cold vs warm start, flicker
 
 Before any work the command checks what it will need: OpenCV for ``--methods sgbm`` (the default
 runs it), scikit-image for ``motorcycle`` and the ``photos`` sets, tifffile for ``cones``; a missing
@@ -33,6 +34,7 @@ from ..data.registry import DATASETS
 from ..errors import ArgumentError
 from .common import (USER_ERRORS, Failures, ImageSize, add_iters, load_model, positive_float, positive_int,
                      progress_bar, require_module, unit_fraction)
+from .sequence_eval import add_sequence_arguments, run_sequence_eval
 
 METHODS = ("mipnet", "sgbm")
 #: optional modules a registered dataset needs: (module, pip package)
@@ -72,6 +74,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="FILE",
                    help="append the results to this JSON-lines file as they come: a line per pair and row as soon "
                         "as the pair is scored, then the table's rows")
+    add_sequence_arguments(p)
     p.set_defaults(func=run)
     return p
 
@@ -152,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
     from ..model import pretrained
     from ..stereo.evaluation import COVERAGES, evaluate_coverages, format_table, mipnet_rows, result_rows
 
+    if DATASETS[args.dataset].kind == "sequence":  # stereo videos, cold against a stream: mipnet.cli.sequence_eval
+        return run_sequence_eval(args, ResultLog(args.out, args.dataset + (f" ({args.preset})" if args.preset else "")))
     methods = parse_methods(args.methods)
     check_dependencies(args.dataset, methods)
     dataset = open_dataset(args)

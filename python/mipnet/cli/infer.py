@@ -4,6 +4,7 @@
     mipnet infer -l 'left/*.png' -r 'right/*.png' -o out      # pairs by sorted name: out/NAME_disp.*
     mipnet infer -l 'mb/*/im0.png' -r 'mb/*/im1.png' -o out   # one folder per scene: out/SCENE_disp.*
     mipnet infer -l 'mb/*' -o out                             # the same: folders holding im0.png/im1.png
+    mipnet infer --video left.mp4 right.mp4 -o out            # a stereo video, warm start (mipnet.cli.stream)
 
 Outputs are named after the left image's file name (``NAME_disp.npy``, ``.pfm``, ``.png``), or, when
 file names repeat within the run (Middlebury, ETH3D: one folder per scene, the same names in each) or
@@ -19,23 +20,21 @@ Python API's ``model(left, right)``.
 from __future__ import annotations
 
 import argparse
-import errno
-import glob
-import os
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
-from ..data.example import EXAMPLE_LEFT, EXAMPLE_RIGHT
-from ..errors import ArgumentError, ShapeError
+from ..errors import ArgumentError
+from ..inference.outputs import OutputWriter
+from ..inference.pairs import pair_reader, read_pair, resolve_pairs
+from ..stereo.rectify import open_calibration
 from .common import (USER_ERRORS, Failures, PairError, add_iters, load_model, naming, positive_float, positive_int,
                      progress_bar, unit_fraction)
+from .distributed import add_ray_arguments, infer_on_ray
+from .stream import add_stream_arguments, run_stream, wants_stream
 
 
-#: what a folder given as ``-l`` holds, tried in order: Middlebury / ETH3D names, then left.* / right.*
-FOLDER_LAYOUTS = (("im0.png", "im1.png"), ("left.*", "right.*"))
-IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".pnm", ".bmp", ".tif", ".tiff", ".webp"}
 DEFAULT_BATCH_SIZE = 2
 
 
@@ -55,12 +54,17 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--weights", metavar="FILE", help="weights file (.safetensors written by MIPNet.save; "
                                                      "default: the shipped weights)")
     add_iters(p)
-    p.add_argument("--batch-size", type=positive_int, default=DEFAULT_BATCH_SIZE, metavar="N",
+    p.add_argument("--batch-size", type=positive_int, default=None, metavar="N",
                    help=f"run up to N consecutive pairs of one size through the network together (default "
                         f"{DEFAULT_BATCH_SIZE}; faster per pair, N times the memory; 1: one pair at a time)")
     p.add_argument("--calib", metavar="FILE",
                    help="calib.txt (Middlebury/ETH3D) or K.txt: also write depth (NAME_depth.npy) and a point cloud "
-                        "(NAME_points.ply)")
+                        "(NAME_points.ply); an OpenCV stereo rig calibration (.yml/.yaml/.xml/.json: K1 D1 K2 D2 R "
+                        "T) rectifies raw pairs first and writes depth in the units of T, the disparity in the "
+                        "rectified frame and the rectified left image (NAME_rectified.png) (docs/calibration.md)")
+    p.add_argument("--rectify-alpha", dest="rectify_alpha", type=float, default=None, metavar="A",
+                   help="with a rig --calib: stereoRectify's free scaling, 0 (default) only pixels both raw images "
+                        "see, 1 every raw pixel (black borders)")
     p.add_argument("--z-far", type=positive_float, default=None, metavar="Z",
                    help="with --calib: leave points farther than Z metres out of the point cloud")
     p.add_argument("--vmin", type=float, default=None,
@@ -79,101 +83,11 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="mark pixels whose match confidence is below C invalid (inf in .npy/.pfm, black in .png, "
                         "no depth or point); 0.5 keeps ~97%% of the pixels in air and drops open water under a "
                         "veil (docs/training.md); implies --confidence")
+    add_stream_arguments(p)
+    add_ray_arguments(p, "with --ray: Ray actors, each holding one model and running on its node's "
+                         "cores / actors there (default: one per node)")
     p.set_defaults(func=run)
     return p
-
-
-# ---- which pairs, and the names of their outputs --------------------------------------------------
-
-
-def _expand(pattern: str) -> list[str]:
-    """The files a path or glob names, sorted; FileNotFoundError if there are none."""
-    if any(c in pattern for c in "*?["):
-        paths = sorted(p for p in glob.glob(pattern) if os.path.isfile(p))
-        if not paths:
-            raise FileNotFoundError(errno.ENOENT, "no file matches this pattern", pattern)
-        return paths
-    if not os.path.exists(pattern):
-        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), pattern)
-    if not os.path.isfile(pattern):
-        raise IsADirectoryError(errno.EISDIR, "not a file", pattern)
-    return [pattern]
-
-
-def _folders(pattern: str) -> list[str]:
-    """The folders a path or glob names, sorted (none for a file, or a glob that matches only files)."""
-    if any(c in pattern for c in "*?["):
-        return sorted(p for p in glob.glob(pattern) if os.path.isdir(p))
-    return [pattern] if os.path.isdir(pattern) else []
-
-
-def _folder_name(path: str) -> str:
-    return os.path.basename(os.path.normpath(os.path.abspath(path)))
-
-
-def folder_pair(folder: str) -> tuple[str, str]:
-    """The left and right images in ``folder`` (:data:`FOLDER_LAYOUTS`); ArgumentError naming it if none."""
-    for left, right in FOLDER_LAYOUTS:
-        found = []
-        for name in (left, right):
-            paths = [p for p in glob.glob(os.path.join(glob.escape(folder), name))
-                     if os.path.isfile(p) and Path(p).suffix.lower() in IMAGE_SUFFIXES]
-            found.append(paths)
-        if all(len(paths) == 1 for paths in found):
-            return found[0][0], found[1][0]
-    raise ArgumentError(f"{folder}: no stereo pair in this folder (expected im0.png and im1.png, or one left.* "
-                        "and one right.* image)")
-
-
-def output_names(lefts: list[str]) -> list[str]:
-    """The name each pair's outputs get: the left file's name without its suffix, or, when those repeat
-    in the run, the name of the left file's folder (the scene)."""
-    stems = [Path(path).stem for path in lefts]
-    return stems if len(set(stems)) == len(stems) else [_folder_name(os.path.dirname(path) or ".") for path in lefts]
-
-
-def resolve_pairs(left: str | None, right: str | None) -> list[tuple[str, str, str]]:
-    """(left image, right image, output name) of every pair the command line names, in order; an error
-    before any work if they cannot be paired or two pairs would write the same outputs."""
-    if left is None and right is None:
-        return [(str(EXAMPLE_LEFT), str(EXAMPLE_RIGHT), EXAMPLE_LEFT.stem)]
-    if left is None:
-        raise ArgumentError("give both -l/--left and -r/--right, or neither (bundled example pair)")
-    folders = _folders(left) if right is None or right == left else []
-    if folders:
-        pairs = [(*folder_pair(folder), _folder_name(folder)) for folder in folders]
-    elif right is None:
-        raise ArgumentError("give both -l/--left and -r/--right, or neither (bundled example pair), or as -l a "
-                            "folder holding im0.png/im1.png or left.*/right.*")
-    else:
-        lefts, rights = _expand(left), _expand(right)
-        if len(lefts) != len(rights):
-            raise ArgumentError(f"{len(lefts)} left images ({left}) but {len(rights)} right images ({right})")
-        pairs = list(zip(lefts, rights, output_names(lefts)))
-    first: dict[str, str] = {}
-    for lp, _, name in pairs:
-        if name in first:
-            raise ArgumentError(f"{first[name]} and {lp} would both write the outputs {name}_disp.*: give them "
-                                "distinct file or folder names, or run them into different --output-directory "
-                                "folders")
-        first[name] = lp
-    return pairs
-
-
-def read_pair(left_path: str, right_path: str) -> tuple[np.ndarray, np.ndarray]:
-    """The two images of a stereo pair as RGB uint8; ShapeError naming both files if their sizes differ
-    or are below the model's minimum."""
-    from ..stereo import io
-    from ..model.network import MIN_SIZE
-
-    left, right = io.read_image(left_path), io.read_image(right_path)
-    (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
-    if (lh, lw) != (rh, rw):
-        raise ShapeError(f"{left_path} is {lh}x{lw} (HxW) but {right_path} is {rh}x{rw}: "
-                         "the two images of a pair must have one size")
-    if min(lh, lw) < MIN_SIZE:
-        raise ShapeError(f"{left_path} is {lh}x{lw} (HxW): MIPNet needs images of at least {MIN_SIZE}x{MIN_SIZE}")
-    return left, right
 
 
 # ---- running the network -----------------------------------------------------------------------------
@@ -191,47 +105,13 @@ def predict(model, images: list[tuple[np.ndarray, np.ndarray]], iters, seed: int
     return list(model(lefts, rights, iters=iters, seed=seed, scale=scale))
 
 
-def _write_npy(path: str, array: np.ndarray) -> None:
-    from ..utils.files import atomic_write
-
-    with atomic_write(path) as f:
-        np.save(f, array)
-
-
-class Writer:
-    """Writes the outputs of one pair under ``out/NAME``: disparity, and confidence, depth, points as asked."""
-
-    def __init__(self, args: argparse.Namespace, out: Path, calib):
-        self.args, self.out, self.calib = args, out, calib
-
-    def __call__(self, name: str, left: np.ndarray, right: np.ndarray, disp: np.ndarray) -> None:
-        from ..stereo import geometry, io, viz
-        from ..stereo.confidence import match_confidence
-
-        args, stem = self.args, self.out / name
-        if args.confidence or args.min_confidence is not None:
-            confidence = match_confidence(left, right, disp)
-            _write_npy(f"{stem}_conf.npy", confidence)
-            io.write_image(f"{stem}_conf.png", viz.colorize(confidence, vmin=0.0, vmax=1.0, cmap="gray"))
-            if args.min_confidence is not None:
-                # pixels the images do not back are invalid (inf, the Middlebury convention)
-                disp = np.where(confidence >= args.min_confidence, disp, np.float32(np.inf))
-        _write_npy(f"{stem}_disp.npy", disp)
-        io.write_pfm(f"{stem}_disp.pfm", disp)
-        io.write_image(f"{stem}_disp.png", viz.colorize(disp, vmin=args.vmin, vmax=args.vmax))
-        if self.calib is not None:
-            depth = geometry.disparity_to_depth(disp, self.calib)
-            _write_npy(f"{stem}_depth.npy", depth)
-            points, colors = geometry.depth_to_points(depth, self.calib, image=left, z_far=args.z_far)
-            io.write_ply(f"{stem}_points.ply", points, colors)
-
-
-def _batches(pairs: list[tuple[str, str, str]], size: int, failures: Failures, progress) -> Iterator[list[tuple]]:
+def _batches(pairs: list[tuple[str, str, str]], size: int, failures: Failures, progress,
+             read=read_pair) -> Iterator[list[tuple]]:
     """Lists of at most ``size`` consecutive readable pairs of one image size: (left, right, name, images);
-    a pair that cannot be read is recorded in ``failures``, counted on ``progress`` and left out."""
+    a pair that ``read`` cannot read is recorded in ``failures``, counted on ``progress`` and left out."""
     batch: list[tuple] = []
     for lp, rp, name in pairs:
-        images = failures.attempt((lp, rp), read_pair, lp, rp)
+        images = failures.attempt((lp, rp), read, lp, rp)
         if images is None:
             progress.update(1)
             continue
@@ -244,20 +124,27 @@ def _batches(pairs: list[tuple[str, str, str]], size: int, failures: Failures, p
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..stereo import io
-
+    if wants_stream(args):  # a stereo video: mipnet.cli.stream
+        return run_stream(args)
     if args.vmin is not None and args.vmax is not None and not args.vmin < args.vmax:
         raise ArgumentError(f"--vmin {args.vmin} must be below --vmax {args.vmax}")
     if args.z_far is not None and not args.calib:
         raise ArgumentError("--z-far needs --calib (the point cloud is written only with a calibration)")
+    if args.rectify_alpha is not None and not args.calib:
+        raise ArgumentError("--rectify-alpha needs --calib with a stereo rig calibration (docs/calibration.md)")
     pairs = resolve_pairs(args.left, args.right)
-    calib = io.read_calib(args.calib) if args.calib else None
+    # calib.txt / K.txt: a dict for rectified pairs; an OpenCV rig calibration: a Rectifier for raw pairs
+    calib = open_calibration(args.calib, args.rectify_alpha) if args.calib else None
+    read = pair_reader(calib)  # rectified first with a rig calibration
+    ray_status = infer_on_ray(args, calib, read)  # --ray: mipnet.cli.distributed
+    if ray_status is not None:
+        return ray_status
     # a single pair is checked before the model loads, so that its error is the only line printed
-    first = read_pair(*pairs[0][:2]) if len(pairs) == 1 else None
+    first = read(*pairs[0][:2]) if len(pairs) == 1 else None
     model = load_model(args.weights)
     out = Path(args.output_directory)
     out.mkdir(parents=True, exist_ok=True)
-    write = Writer(args, out, calib)
+    write = OutputWriter(args, out, calib)
     iters = tuple(args.iters)
 
     if first is not None:  # a single pair: its error is the command's error (status 2)
@@ -278,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
 
     written = 0
     with progress_bar(len(pairs), "infer") as progress:
-        for batch in _batches(pairs, args.batch_size, failures, progress):
+        for batch in _batches(pairs, args.batch_size or DEFAULT_BATCH_SIZE, failures, progress, read):
             disparities: list = [None] * len(batch)
             if len(batch) > 1:
                 try:

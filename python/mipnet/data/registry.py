@@ -13,7 +13,9 @@ Three kinds of set:
   ``eth3d``, ``kitti2012``, ``kitti2015``, ``crestereo``, and ``folder`` (a folder with ``left/``,
   ``right/`` and optionally ``disp/``, files paired by sorted name);
 * real evaluation pairs (:data:`mipnet.data.REAL_SETS`: ``motorcycle``, ``cones``): evaluation only,
-  never training data.
+  never training data;
+* ``sequence``: generated stereo videos with a moving camera (:class:`mipnet.data.SequenceSet`, items are
+  ``{"frames": [...]}``), for ``mipnet eval --dataset sequence`` only.
 
 Training takes specs ``NAME[:ROOT][:WEIGHT]`` (``WEIGHT``, default 1, is the share of training samples
 the spec contributes). Generated training pairs use pair seeds below :data:`EVAL_SEED_START` (1,000,000)
@@ -34,6 +36,7 @@ from .datasets import CREStereo, ETH3D, KITTI, FolderPairs, MiddEval3, Middlebur
 from .photo_pairs import PhotoStereo
 from .real import REAL_SETS, RealPairs
 from .scenes import SceneStereo
+from .sequences import SequenceSet
 from .synthetic import EVAL_SEED_START, SyntheticStereo
 
 __all__ = ["DATASETS", "RegisteredDataset", "dataset_names", "open_dataset", "DataSpec", "parse_spec", "open_spec",
@@ -44,7 +47,7 @@ __all__ = ["DATASETS", "RegisteredDataset", "dataset_names", "open_dataset", "Da
 class RegisteredDataset:
     """One name of the registry.
 
-    ``kind`` is ``"generated"``, ``"disk"`` or ``"real"``; ``sparse``: ground truth from LiDAR or SfM points
+    ``kind`` is ``"generated"``, ``"disk"``, ``"real"`` or ``"sequence"`` (videos, evaluation only); ``sparse``: ground truth from LiDAR or SfM points
     (the sparse augmentor); ``underwater``: generated under water, with a sensor's noise under the water's
     light; ``open``: builds the dataset from the keywords of :func:`open_dataset` it needs.
     """
@@ -70,6 +73,10 @@ def _real(name: str) -> Callable[..., Dataset]:
     def open_real(root: str | None, seed: int, water, **_) -> Dataset:
         return RealPairs(name, underwater=water, seed=seed, root=root)
     return open_real
+
+
+def _sequences(size: tuple[int, int], seed: int, count: int, water, **_) -> Dataset:
+    return SequenceSet(count, *size, seed=seed, water=water)
 
 
 def _folder(root: str, **_) -> Dataset:
@@ -100,6 +107,7 @@ _ENTRIES = [
     RegisteredDataset("kitti2015", "disk", lambda root, **_: KITTI(root, year=2015), sparse=True),
     RegisteredDataset("crestereo", "disk", lambda root, **_: CREStereo(root)),
     RegisteredDataset("folder", "disk", _folder),
+    RegisteredDataset("sequence", "sequence", _sequences),
 ]
 
 #: Every registered name -> its entry, in the order ``--help`` lists them.

@@ -694,9 +694,12 @@ def _shade(scene: _Scene, owner: np.ndarray, x_left: np.ndarray) -> np.ndarray:
     return np.clip(image * scene.cast, 0.0, 1.0).reshape(height, width, 3)
 
 
-def apply_camera(rng: np.random.Generator, image: np.ndarray) -> np.ndarray:
+def apply_camera(rng: np.random.Generator, image: np.ndarray,
+                 noise_rng: np.random.Generator | None = None) -> np.ndarray:
     """One view's camera: exposure, white balance and vignetting (gains on linear light, applied as
-    gain^(1/2.2) to the gamma-encoded image), slight blur, signal-dependent noise; uint8 out."""
+    gain^(1/2.2) to the gamma-encoded image), slight blur, signal-dependent noise; uint8 out.
+    ``noise_rng`` draws the noise itself (default ``rng``): a video keeps one camera (``rng`` in the same
+    state every frame) with new noise each frame."""
     from ..stereo.filters import gaussian_blur
 
     height, width = image.shape[:2]
@@ -715,7 +718,8 @@ def apply_camera(rng: np.random.Generator, image: np.ndarray) -> np.ndarray:
         out = gaussian_blur(out, sigma)
     read, shot = log_uniform(rng, 0.002, 0.015), rng.uniform(0.0, 0.02)
     # Noise std sqrt(read^2 + shot^2 * signal): Gaussian approximation of Poisson-Gaussian noise.
-    noise = rng.standard_normal(out.shape, dtype=np.float32) * np.sqrt(read**2 + shot**2 * np.clip(out, 0.0, 1.0))
+    noise = (rng if noise_rng is None else noise_rng).standard_normal(out.shape, dtype=np.float32) \
+        * np.sqrt(read**2 + shot**2 * np.clip(out, 0.0, 1.0))
     return _quantise(out + noise)
 
 

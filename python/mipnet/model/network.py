@@ -25,6 +25,7 @@ from ..serialization import load_safetensors, save_safetensors
 from ..tensor import Tensor
 from . import pretrained
 from .config import DIVISOR, MIN_SIZE, MIPNetConfig
+from .state import NetworkState
 
 __all__ = ["MIPNet", "MIPNetConfig", "load", "gamma_draw"]
 
@@ -36,7 +37,8 @@ class MIPNet(Module):
         use_aff, use_ip, use_rls, rx, ry, vertical_constraint, gamma_shape, gamma_scale,
         max_disp_init: see :class:`MIPNetConfig`.
 
-    Call: ``forward(left, right, iters=(6, 6), seed=20, disp_init=None, scale=1.0)``.
+    Call: ``forward(left, right, iters=(6, 6), seed=20, disp_init=None, scale=1.0)``;
+    ``forward_with_state`` also returns the state the pass ends in and can start from one (video, docs/video.md).
 
     Inputs: HxWx3 uint8 RGB arrays, HxW grayscale arrays, or (N,3,H,W) float arrays / Tensors in
     0..255; any H, W >= 32 (replicate-padded to a multiple of 16 and cropped back).
@@ -176,6 +178,55 @@ class MIPNet(Module):
             The pass needs more memory than the process may still use (:func:`mipnet.model.memory.check`;
             ``MIPNET_MEMORY_CHECK=0`` skips the check).
         """
+        l, r, batched, size, pad, (n16, n4) = self._prepare(left, right, iters, scale)
+        if self.training:
+            preds, _ = self._run(l, r, pad, n16, n4, seed, disp_init)
+            return [_crop(p, pad, l.shape) for p in preds]
+        disp, _ = self._evaluate(l, r, size, pad, (n16, n4), seed, disp_init, None)
+        return disp if batched else disp[0]
+
+    def forward_with_state(self, left: Any, right: Any, iters: int | Sequence[int] = (6, 6), seed: int | None = 20,
+                           init: NetworkState | None = None, scale: float = 1.0) -> tuple[np.ndarray, NetworkState]:
+        """Eval mode: the disparity of :meth:`forward` and the state the pass ends in, optionally starting from one.
+
+        With ``init=None`` the disparity is exactly ``forward(left, right, iters, seed, scale=scale)``'s. Each piece of
+        ``init`` that is set replaces its cold start (:class:`mipnet.model.state.NetworkState`: the 1/16 field instead
+        of the gamma draw, the hand-over field, either level's hidden state); :class:`mipnet.Stream` passes the state
+        of the previous video frame this way (docs/video.md).
+
+        Parameters
+        ----------
+        left, right, iters, seed, scale
+            As :meth:`forward`.
+        init : NetworkState, optional
+            The pieces to start from, shaped for this batch and the padded (and, with ``scale``, resized) size.
+
+        Returns
+        -------
+        disparity : numpy.ndarray
+            As :meth:`forward` in eval mode: (H, W), or (N, H, W) for a batch.
+        state : NetworkState
+            Both levels' fields and hidden states after their iterations (``flow4``, ``hidden4`` None when
+            ``n4 = 0``).
+
+        Raises
+        ------
+        ArgumentError
+            Training mode; or as :meth:`forward`; or ``init`` holds NaN or inf.
+        ShapeError
+            As :meth:`forward`, or a piece of ``init`` of the wrong shape.
+        MemoryLimitError
+            As :meth:`forward`.
+        """
+        if self.training:
+            raise ArgumentError("MIPNet.forward_with_state runs in eval mode only (call model.eval() first)")
+        l, r, batched, size, pad, n_iters = self._prepare(left, right, iters, scale)
+        disp, state = self._evaluate(l, r, size, pad, n_iters, seed, None, init)
+        return (disp if batched else disp[0]), state
+
+    def _prepare(self, left: Any, right: Any, iters: int | Sequence[int], scale: float):
+        """The checked batch (N,3,H,W) of each image (resized with ``scale``), whether the input was batched, the
+        input size (H, W), the padding and (n16, n4); MemoryLimitError before a pass that would not fit."""
         n16, n4 = _parse_iters(iters)
         l, batched = _as_batch(left, "left", self.dtype)
         r, _ = _as_batch(right, "right", self.dtype)
@@ -188,20 +239,29 @@ class MIPNet(Module):
             l, r = (_resize_images(a, _scaled_size(size, scale)) for a in (l, r))
         pad = _padding(l.shape[2], l.shape[3])
         check_forward(self, l.shape, (n16, n4), self.training and is_grad_enabled())  # MemoryLimitError before OOM
-        if self.training:
-            preds = self._run(l, r, pad, n16, n4, seed, disp_init)
-            return [_crop(p, pad, l.shape) for p in preds]
+        return l, r, batched, size, pad, (n16, n4)
+
+    def _evaluate(self, l: np.ndarray, r: np.ndarray, size: tuple[int, int], pad: tuple[int, int, int, int],
+                  iters: tuple[int, int], seed: int | None, disp_init: Any,
+                  init: NetworkState | None) -> tuple[np.ndarray, NetworkState]:
+        """The eval pass: the disparity (N, H, W) at the input size ``size`` and the final state."""
         with no_grad():
-            pred = _crop(self._run(l, r, pad, n16, n4, seed, disp_init)[-1], pad, l.shape)
+            preds, state = self._run(l, r, pad, *iters, seed, disp_init, init)
+            pred = _crop(preds[-1], pad, l.shape)
             if pred.shape[2:] != size:
                 # back to the input size; disparity in input pixels = resized disparity · W / W_resized
                 pred = ops.interpolate(pred, size=tuple(size), mode="bilinear", align_corners=False) * (size[1] / l.shape[3])
             disp = pred.numpy()[:, 0]
-        return disp if batched else disp[0]
+        return disp, state
 
     def _run(self, left: np.ndarray, right: np.ndarray, pad: tuple[int, int, int, int], n16: int, n4: int,
-             seed: int | None, disp_init: Any) -> list[Tensor]:
+             seed: int | None, disp_init: Any, init: NetworkState | None = None) -> tuple[list[Tensor], NetworkState]:
+        """The predictions (all of them in training, the last one in eval) and the state the pass ends in,
+        starting from the pieces of ``init`` that are set (architecture.md §2.9)."""
         n = left.shape[0]
+        # padded size: the input plus the [left, right, top, bottom] padding
+        padded = (left.shape[2] + pad[2] + pad[3], left.shape[3] + pad[0] + pad[1])
+        init = self._checked_init(init, n, padded)
         # normalise to [-1, 1] as architecture.md §1 writes it, I' = 2 (I / 255) - 1; replicate-pad both images identically
         with scope("encoder"):
             images = ops.pad(Tensor(2 * (np.concatenate([left, right]) / 255) - 1), list(pad), mode="replicate")
@@ -209,27 +269,49 @@ class MIPNet(Module):
             hidden4 = ops.tanh(fl4[:, :128])
             context4 = ops.relu(fl4[:, 128:])
             fl16, fr16, hidden16, context16 = (ops.avg_pool2d(t, 4, 4) for t in (fl4, fr4, hidden4, context4))
-        flow16 = self._initial_flow(n, fl16.shape[2], fl16.shape[3], seed, disp_init)
+        if init.flow16 is not None:
+            flow16 = Tensor(init.flow16)
+        else:
+            flow16 = self._initial_flow(n, fl16.shape[2], fl16.shape[3], seed, disp_init)
+        if init.hidden16 is not None:
+            hidden16 = Tensor(init.hidden16)
         collect = self.training
 
         preds: list[Tensor] = []
         with scope("level 1/16"):
-            flow, mask = self._iterate(fl16, fr16, hidden16, context16, flow16, n16, preds if collect else None, 4)
+            flow, mask, hidden16 = self._iterate(fl16, fr16, hidden16, context16, flow16, n16,
+                                                 preds if collect else None, 4)
         if n4 == 0:
             # eval: the hand-over field, convex x4 then bilinear x4 (architecture.md §2.8); training has its 1/16 predictions
-            return preds if collect else [self._prediction(flow, mask, 4)]
-        with no_grad():  # the hand-over field is detached (architecture.md §2.9)
-            flow4 = ops.convex_upsample(flow.detach(), mask.detach(), rate=4)
+            state = NetworkState(flow16=flow.numpy(), hidden16=hidden16.numpy())
+            return (preds if collect else [self._prediction(flow, mask, 4)]), state
+        if init.flow4 is not None:
+            flow4 = Tensor(init.flow4)
+        else:
+            with no_grad():  # the hand-over field is detached (architecture.md §2.9)
+                flow4 = ops.convex_upsample(flow.detach(), mask.detach(), rate=4)
+        if init.hidden4 is not None:
+            hidden4 = Tensor(init.hidden4)
         with scope("level 1/4"):
-            self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
-        return preds
+            flow4, _, hidden4 = self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
+        return preds, NetworkState(flow.numpy(), hidden16.numpy(), flow4.numpy(), hidden4.numpy())
+
+    def _checked_init(self, init: NetworkState | None, n: int, padded: tuple[int, int]) -> NetworkState:
+        """``init`` checked against a batch of ``n`` padded images and cast to the model's dtype; an empty
+        state for None."""
+        if init is None:
+            return NetworkState()
+        if not isinstance(init, NetworkState):
+            raise ArgumentError(f"MIPNet: init must be a NetworkState, got {type(init).__name__}")
+        init.check(n, padded)
+        return init.as_dtype(self.dtype)
 
     def _iterate(self, fl: Tensor, fr: Tensor, hidden: Tensor, context: Tensor, flow: Tensor, iters: int,
-                 preds: list[Tensor] | None, bilinear: int | None) -> tuple[Tensor, Tensor]:
+                 preds: list[Tensor] | None, bilinear: int | None) -> tuple[Tensor, Tensor, Tensor]:
         """``iters`` IPM iterations at one level. Appends a prediction after every sub-update when
         ``bilinear`` is set (4: 1/16 level, convex x4 then bilinear x4; 1: 1/4 level), else only the
-        final one (eval at the 1/4 level) or none (eval at 1/16). Returns the last flow and mask;
-        the mask head runs only where its mask is used."""
+        final one (eval at the 1/4 level) or none (eval at 1/16). Returns the last flow, mask and hidden
+        state; the mask head runs only where its mask is used."""
         operands = _CorrelationOperands(fl, fr, self.config)
         blocks = self._blocks()
         every = preds is not None and bilinear is not None
@@ -252,7 +334,7 @@ class MIPNet(Module):
                             mask = block.mask_head(hidden)
                 elif preds is not None and (bilinear is not None or last):
                     preds.append(self._prediction(flow, mask, bilinear or 1))
-        return flow, mask
+        return flow, mask, hidden
 
     @staticmethod
     def _prediction(flow: Tensor, mask: Tensor | None, bilinear: int) -> Tensor:
