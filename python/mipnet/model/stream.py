@@ -12,8 +12,8 @@ and two at 1/4.
 
 The reset rule (docs/video.md). Before frame t runs warm, the previous disparity ``d_{t-1}`` is checked on the new
 pair: ``e_new``, its photometric error on pair t (:func:`mipnet.model.photometric.photometric_error`, SSIM and L1
-of the left view against the right view warped by ``d_{t-1}``; the lower quartile over the pixels whose match lies
-inside the image), is compared with ``e_old``, the same error of ``d_{t-1}`` on its own pair t - 1. A new scene makes
+of the left view against the right view warped by ``d_{t-1}``; the lower quartile over the textured pixels whose
+match lies inside the image, at about :data:`CHECK_WIDTH` columns), is compared with ``e_old``, the same error of ``d_{t-1}`` on its own pair t - 1. A new scene makes
 ``d_{t-1}`` a wrong disparity for most pixels of the new images, and the quartile jumps; the camera's motion between
 two frames misplaces only the pixels near depth edges, which the quartile leaves out. If ``e_new > reset * e_old``
 the frame runs cold, with ``cold_iters``, exactly as ``model(left, right, iters=cold_iters)`` would. A change of
@@ -33,7 +33,7 @@ from .network import MIPNet, _parse_iters
 from .photometric import in_image_mask, photometric_error
 from .state import NetworkState
 
-__all__ = ["Stream", "CARRY_CHOICES", "DEFAULT_CARRY", "DEFAULT_ITERS", "DEFAULT_RESET", "ERROR_QUANTILE"]
+__all__ = ["Stream", "CARRY_CHOICES", "DEFAULT_CARRY", "DEFAULT_ITERS", "DEFAULT_RESET", "ERROR_QUANTILE", "CHECK_WIDTH"]
 
 #: What a warm frame can start from, from the previous frame's final state:
 #: ``flow16`` its 1/16 field; ``pooled16`` its 1/4 field, 4x4-averaged to the 1/16 level (instead of ``flow16``);
@@ -45,10 +45,12 @@ DEFAULT_CARRY = ("flow4", "hidden4")
 DEFAULT_ITERS = (1, 2)
 #: A frame restarts cold when the previous disparity's photometric error on it exceeds this times its error on its
 #: own frame (docs/video.md: measured on generated sequences with and without cuts).
-DEFAULT_RESET = 1.3
+DEFAULT_RESET = 1.9
 #: The photometric error of a disparity on a pair is this quantile of its per-pixel errors: the pixels a small camera
 #: motion leaves matched, not the depth edges and occlusions it moves (docs/video.md).
 ERROR_QUANTILE = 0.25
+#: The reset check runs at about this many columns (docs/video.md): the frame block-averaged by W // CHECK_WIDTH.
+CHECK_WIDTH = 256
 
 
 def _pool16(flow4: np.ndarray) -> np.ndarray:
@@ -63,19 +65,52 @@ def _pool16(flow4: np.ndarray) -> np.ndarray:
     return flow4.reshape(n, c, h4 // 4, 4, w4 // 4, 4).mean(axis=(3, 5)) / 4.0
 
 
+def _textured(left: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels whose luminance gradient is above the frame's median, where a wrong disparity shows
+    as a photometric error (on blank water or sky any disparity matches).
+
+    Shapes
+    ------
+    left: (H, W, 3) -> (H, W).
+    """
+    luma = left @ np.array([0.299, 0.587, 0.114], np.float32)
+    gradient = np.zeros(luma.shape, np.float32)
+    # |I(y, x+1) - I(y, x)| + |I(y+1, x) - I(y, x)|, attributed to (y, x)
+    gradient[:, :-1] += np.abs(np.diff(luma, axis=1))
+    gradient[:-1] += np.abs(np.diff(luma, axis=0))
+    return gradient > np.median(gradient)
+
+
+def _block_mean(a: np.ndarray, k: int) -> np.ndarray:
+    """``a`` averaged over k x k blocks (the last rows and columns that fill no block dropped).
+
+    Shapes
+    ------
+    a: (H, W, ...) -> (H // k, W // k, ...).
+    """
+    h, w = a.shape[0] // k * k, a.shape[1] // k * k
+    # block (y, x) covers rows k y .. k y + k - 1 and columns k x .. k x + k - 1
+    return a[:h, :w].reshape(h // k, k, w // k, k, *a.shape[2:]).mean(axis=(1, 3))
+
+
 def _photometric(left: np.ndarray, right: np.ndarray, disp: np.ndarray) -> float:
     """The :data:`ERROR_QUANTILE` quantile of the per-pixel photometric error of ``disp`` on the pair, over the
-    pixels whose match lies inside the right image (inf if none does).
+    textured pixels (:func:`_textured`) whose match lies inside the right image (inf if none does), at about
+    :data:`CHECK_WIDTH` columns: images and disparity are block-averaged by ``k = W // CHECK_WIDTH`` (the disparity
+    divided by k), so a camera motion of a given share of the image moves the pixels the same at every frame size.
 
     Shapes
     ------
     left, right: (H, W, 3) 0..255; disp: (H, W).
     """
+    k = max(1, disp.shape[1] // CHECK_WIDTH)
+    if k > 1:
+        left, right, disp = _block_mean(left, k), _block_mean(right, k), _block_mean(disp, k) / k
     d = np.ascontiguousarray(disp[None, None], dtype=np.float32)
     # (H, W, 3) -> (1, 3, H, W)
     error = photometric_error(left.transpose(2, 0, 1)[None], right.transpose(2, 0, 1)[None], d).numpy()
-    inside = in_image_mask(d)
-    return float(np.quantile(error[inside], ERROR_QUANTILE)) if inside.any() else math.inf
+    counted = in_image_mask(d).reshape(disp.shape) & _textured(left)
+    return float(np.quantile(error.reshape(disp.shape)[counted], ERROR_QUANTILE)) if counted.any() else math.inf
 
 
 def _as_frame(image: Any, name: str) -> np.ndarray:
