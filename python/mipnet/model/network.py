@@ -221,7 +221,9 @@ class MIPNet(Module):
         if self.training:
             raise ArgumentError("MIPNet.forward_with_state runs in eval mode only (call model.eval() first)")
         l, r, batched, size, pad, n_iters = self._prepare(left, right, iters, scale)
-        disp, state = self._evaluate(l, r, size, pad, n_iters, seed, None, init)
+        disp, final = self._evaluate(l, r, size, pad, n_iters, seed, None, init)
+        # the final tensors become arrays only here, where a caller asked for the state
+        state = NetworkState(**{name: t.numpy() for name, t in final.items()})
         return (disp if batched else disp[0]), state
 
     def _prepare(self, left: Any, right: Any, iters: int | Sequence[int], scale: float):
@@ -243,21 +245,23 @@ class MIPNet(Module):
 
     def _evaluate(self, l: np.ndarray, r: np.ndarray, size: tuple[int, int], pad: tuple[int, int, int, int],
                   iters: tuple[int, int], seed: int | None, disp_init: Any,
-                  init: NetworkState | None) -> tuple[np.ndarray, NetworkState]:
-        """The eval pass: the disparity (N, H, W) at the input size ``size`` and the final state."""
+                  init: NetworkState | None) -> tuple[np.ndarray, dict[str, Tensor]]:
+        """The eval pass: the disparity (N, H, W) at the input size ``size`` and the final state's tensors."""
         with no_grad():
-            preds, state = self._run(l, r, pad, *iters, seed, disp_init, init)
+            preds, final = self._run(l, r, pad, *iters, seed, disp_init, init)
             pred = _crop(preds[-1], pad, l.shape)
             if pred.shape[2:] != size:
                 # back to the input size; disparity in input pixels = resized disparity · W / W_resized
                 pred = ops.interpolate(pred, size=tuple(size), mode="bilinear", align_corners=False) * (size[1] / l.shape[3])
             disp = pred.numpy()[:, 0]
-        return disp, state
+        return disp, final
 
     def _run(self, left: np.ndarray, right: np.ndarray, pad: tuple[int, int, int, int], n16: int, n4: int,
-             seed: int | None, disp_init: Any, init: NetworkState | None = None) -> tuple[list[Tensor], NetworkState]:
-        """The predictions (all of them in training, the last one in eval) and the state the pass ends in,
-        starting from the pieces of ``init`` that are set (architecture.md §2.9)."""
+             seed: int | None, disp_init: Any,
+             init: NetworkState | None = None) -> tuple[list[Tensor], dict[str, Tensor]]:
+        """The predictions (all of them in training, the last one in eval) and the tensors of the state the pass
+        ends in (the fields of :class:`NetworkState`, uncopied), starting from the pieces of ``init`` that are set
+        (architecture.md §2.9)."""
         n = left.shape[0]
         # padded size: the input plus the [left, right, top, bottom] padding
         padded = (left.shape[2] + pad[2] + pad[3], left.shape[3] + pad[0] + pad[1])
@@ -283,8 +287,7 @@ class MIPNet(Module):
                                                  preds if collect else None, 4)
         if n4 == 0:
             # eval: the hand-over field, convex x4 then bilinear x4 (architecture.md §2.8); training has its 1/16 predictions
-            state = NetworkState(flow16=flow.numpy(), hidden16=hidden16.numpy())
-            return (preds if collect else [self._prediction(flow, mask, 4)]), state
+            return (preds if collect else [self._prediction(flow, mask, 4)]), {"flow16": flow, "hidden16": hidden16}
         if init.flow4 is not None:
             flow4 = Tensor(init.flow4)
         else:
@@ -294,7 +297,7 @@ class MIPNet(Module):
             hidden4 = Tensor(init.hidden4)
         with scope("level 1/4"):
             flow4, _, hidden4 = self._iterate(fl4, fr4, hidden4, context4, flow4, n4, preds, 1 if collect else None)
-        return preds, NetworkState(flow.numpy(), hidden16.numpy(), flow4.numpy(), hidden4.numpy())
+        return preds, {"flow16": flow, "hidden16": hidden16, "flow4": flow4, "hidden4": hidden4}
 
     def _checked_init(self, init: NetworkState | None, n: int, padded: tuple[int, int]) -> NetworkState:
         """``init`` checked against a batch of ``n`` padded images and cast to the model's dtype; an empty
