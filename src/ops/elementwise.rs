@@ -9,6 +9,7 @@
 //! | sum to shape | `sum_to_shape` | broadcast of g |
 //! | mean over axes | `mean_fwd` | `mean_bwd`: g / count broadcast over the reduced axes |
 
+use super::lanes;
 use crate::tensor::{check_same_shape, par_filled, zeros};
 use crate::{Error, Float, Result};
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, Axis, IxDyn, Zip};
@@ -179,12 +180,16 @@ pub fn mean_fwd<F: Float>(x: ArrayViewD<F>, axes: &[usize], keepdim: bool) -> Re
     let count: usize = axes.iter().map(|&a| x.shape()[a]).product();
     let kept: Vec<usize> = (0..x.ndim()).filter(|a| !axes.contains(a)).map(|a| x.shape()[a]).collect();
     let mut out = if trailing(x.ndim(), axes) {
-        // the reduced axes are the last ones: one contiguous run of `count` values per output element
+        // the reduced axes are the last ones: one contiguous run of `count` values per output element,
+        // summed in blocks with an f64 total (a spatial mean over a 1/2-resolution map adds ~10^5 values)
         let x = x.as_standard_layout();
         let xs = x.as_slice().expect("standard layout");
-        let inv = F::one() / F::from_usize(count).unwrap();
-        let sums: Vec<F> = xs.par_chunks(count.max(1)).map(|run| sum_fixed(run) * inv).collect();
-        ArrayD::from_shape_vec(IxDyn(&kept), sums).expect("one value per kept index")
+        let means: Vec<F> = xs.par_chunks(count.max(1)).map(|run| {
+            let mut total = 0.0;
+            lanes::sum(run, &mut total);
+            F::from_f64(total / count as f64).unwrap()
+        }).collect();
+        ArrayD::from_shape_vec(IxDyn(&kept), means).expect("one value per kept index")
     } else {
         let mut out = x.to_owned();
         for &a in axes {
@@ -204,20 +209,6 @@ pub fn mean_fwd<F: Float>(x: ArrayViewD<F>, axes: &[usize], keepdim: bool) -> Re
 fn trailing(ndim: usize, axes: &[usize]) -> bool {
     !axes.is_empty() && axes.iter().enumerate().all(|(i, &a)| a == ndim - axes.len() + i)
 }
-
-/// Σ v in a fixed order: 8 running sums over the positions i mod 8, added pairwise.
-fn sum_fixed<F: Float>(v: &[F]) -> F {
-    let mut acc = [F::zero(); 8];
-    let chunks = v.chunks_exact(8);
-    let rest = chunks.remainder();
-    for c in chunks {
-        // sum l collects the elements i with i mod 8 = l
-        acc.iter_mut().zip(c).for_each(|(a, &x)| *a += x);
-    }
-    acc.iter_mut().zip(rest).for_each(|(a, &x)| *a += x);
-    ((acc[0] + acc[4]) + (acc[2] + acc[6])) + ((acc[1] + acc[5]) + (acc[3] + acc[7]))
-}
-
 
 /// # Gradient
 /// dx = g / count, broadcast over the reduced axes (g with or without the kept axes).

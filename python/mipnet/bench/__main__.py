@@ -1,4 +1,4 @@
-"""``python -m mipnet.bench ops|model``."""
+"""``python -m mipnet.bench ops|model|precision``."""
 
 import sys
 

@@ -6,8 +6,10 @@ Usage::
                                [--step 128x256x4:3,3]
     python -m mipnet.bench model [--threads 2] [--sizes 384x512 768x1024 1088x1920]
                                  [--train 384x512x2:6,6 128x256x4:3,3] [--engines ...] [--profile]
+    python -m mipnet.bench precision [--size 384x512] [--batch 2] [--iters 6,6] [--inputs scenes|noise]
 
-``ops`` times each kernel row (forward, or forward + backward) with mipnet and with torch and prints
+``precision`` (:mod:`mipnet.bench.precision`) prints float32's error against float64 per layer group
+of a training-mode forward, mipnet beside torch. ``ops`` times each kernel row (forward, or forward + backward) with mipnet and with torch and prints
 a table: op, shape, mipnet ms and torch ms (medians of runs in alternating blocks, each after a
 warm-up), their ratio, and for rows with a FLOP count the achieved GFLOP/s and its share of the FMA
 peak. The header names the CPU, the ISA path and GEMM plan mipnet runs, and the peak measured at
@@ -38,6 +40,7 @@ import mipnet.ops as M
 from mipnet import _core
 from mipnet.bench.model import ENGINES
 from mipnet.bench.machine import machine_header
+from mipnet.bench.precision import main as run_precision, parse_args as precision_args
 
 
 #: Pause after each block of runs of one library (longer than OpenMP's spin-wait).
@@ -315,7 +318,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                        help="fresh runs per engine and case, the engines taking turns; the table gives the median "
                             "(default 1)")
     model.add_argument("--profile", action="store_true", help="also print mipnet's profile of eval and train")
+    precision = sub.add_parser("precision", help="float32 against float64 per layer group in a training-mode "
+                                                  "forward, mipnet beside torch")
+    precision_args(precision)
     args = parser.parse_args(argv)
+    if args.command == "precision":
+        return run_precision(args)
     if args.command == "model":
         from .model import run as run_model
 
