@@ -1,6 +1,6 @@
 //! The element types kernels run on: f32 (production) and f64 (gradient checks, float64 models).
 
-use crate::gemm::Kernels;
+use crate::gemm::{Kernels, Plan};
 use std::fmt::Debug;
 use std::iter::Sum;
 use std::ops::{AddAssign, DivAssign, MulAssign, SubAssign};
@@ -33,6 +33,10 @@ pub trait Float:
 
     /// The GEMM's micro-kernels and plans for this type (see `gemm::Plan`).
     fn gemm_kernels() -> &'static Kernels<Self>;
+    /// The plan of bfloat16 products for this type, where the CPU has one ([`Plan::bf16`]: f32 only).
+    fn bf16_plan() -> Option<&'static Plan<Self>> {
+        None
+    }
 }
 
 impl Float for f32 {
@@ -40,6 +44,9 @@ impl Float for f32 {
     fn gemm_kernels() -> &'static Kernels<f32> {
         static K: Kernels<f32> = Kernels::new(crate::gemm::ukernel::<f32>);
         &K
+    }
+    fn bf16_plan() -> Option<&'static Plan<f32>> {
+        Plan::<f32>::bf16()
     }
 }
 

@@ -133,6 +133,8 @@ pub struct Plan<E> {
     pub mc: usize,
     /// Columns of B packed at a time.
     pub nc: usize,
+    /// Products in bfloat16 with f32 sums ([`Plan::bf16`]): the kernel reads panels of bf16 pairs.
+    pub pairs: bool,
     kernel: UKernel<E>,
 }
 
@@ -180,7 +182,7 @@ impl<E: Float> Plan<E> {
             // the default shapes are instantiated (tests_rs/gemm.rs builds every plan), so the
             // portable kernel never stands in for them
             let kernel = (E::gemm_kernels().pick)(isa, mr, nv).unwrap_or(kernel::generic::<E, 4, 2>);
-            Plan { isa, mr, nr, kc, mc, nc, kernel }
+            Plan { isa, mr, nr, kc, mc, nc, pairs: false, kernel }
         }))
     }
 
@@ -197,7 +199,7 @@ impl<E: Float> Plan<E> {
     fn portable() -> &'static Plan<E> {
         let (mr, nv) = default_shape(Isa::Generic);
         E::gemm_kernels().plans[Isa::Generic.index()].get_or_init(|| Plan {
-            isa: Isa::Generic, mr, nr: nv * simd::GENERIC_LANES, kc: 256, mc: 256, nc: 256,
+            isa: Isa::Generic, mr, nr: nv * simd::GENERIC_LANES, kc: 256, mc: 256, nc: 256, pairs: false,
             kernel: kernel::generic::<E, 4, 2>,
         })
     }
@@ -213,7 +215,7 @@ impl<E: Float> Plan<E> {
             Some(kernel) if isa.supported() && kc > 0 && mc > 0 && nc > 0 => {
                 // MC and NC are whole panels
                 let (mc, nc) = (mc.div_ceil(mr) * mr, nc.div_ceil(nr) * nr);
-                Ok(Plan { isa, mr, nr, kc, mc, nc, kernel })
+                Ok(Plan { isa, mr, nr, kc, mc, nc, pairs: false, kernel })
             }
             _ => Err(Error::arg("gemm", format!("no {} micro-kernel of {mr} x {nr} (or zero block sizes)", isa.name()))),
         }
@@ -239,6 +241,30 @@ impl<E: Float> Plan<E> {
     pub fn describe(&self) -> String {
         format!("{} {}x{} KC={} MC={} NC={}", self.isa.name(), self.mr, self.nr, self.kc, self.mc, self.nc)
     }
+}
+
+impl Plan<f32> {
+    /// The plan of bfloat16 products: the AVX-512 plan (same blocks and micro-tile) whose kernel
+    /// rounds A and B to bf16 as they are packed and sums their products in f32 with `vdpbf16ps`
+    /// (AVX512_BF16: AMD Zen 4 and later, Intel Cooper Lake and Sapphire Rapids and later). None when
+    /// the CPU lacks it or `MIPNET_ISA` chose a narrower path.
+    pub fn bf16() -> Option<&'static Plan<f32>> {
+        static PLAN: OnceLock<Option<Plan<f32>>> = OnceLock::new();
+        PLAN.get_or_init(|| {
+            #[cfg(target_arch = "x86_64")]
+            if Isa::selected() == Isa::Avx512 && std::arch::is_x86_feature_detected!("avx512bf16") {
+                let base = Plan::<f32>::for_isa(Isa::Avx512).ok()?;
+                // the AVX-512 plan's default micro-tile is 8 x 3 vectors (`default_shape`)
+                return Some(Plan { kernel: kernel::avx512_bf16::<f32, 8, 3>, pairs: true, ..*base });
+            }
+            None
+        }).as_ref()
+    }
+}
+
+/// x rounded to bfloat16 (nearest, ties to even), as the bf16 plan rounds its operands.
+pub fn round_to_bf16(x: f32) -> f32 {
+    f32::from_bits(pack::bf16_bits(x) << 16)
 }
 
 /// Most rows of a micro-tile (the size of the bias buffer of an edge tile).
@@ -307,8 +333,15 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
     // equal K blocks of kcb and column blocks of ncb (the chains do not depend on them)
     let (kcb, ncb) = (plan.kc_for(k), plan.nc_for(n));
     let (kc_max, nc_max) = (kcb.min(k.max(1)), ncb.min(n.div_ceil(nr) * nr));
-    with_bufs(a_len * es, nc_max * kc_max * es, |pa, pb| {
+    // bf16 plans also hold the chunk's A panels and the B block as pairs: every K block but the last
+    // has an even depth, so A's pairs take ceil(k / 2) rows of depth and block p0 starts at (p0 / 2)·mpad
+    let (a_pairs, b_pairs) = match plan.pairs {
+        true => (chunk.div_ceil(mr) * mr * k.div_ceil(2), kc_max.div_ceil(2) * nc_max),
+        false => (0, 0),
+    };
+    with_bufs((a_len + a_pairs) * es, (nc_max * kc_max + b_pairs) * es, |pa, pb| {
         let (pa, pb) = (pa.cast::<E>(), pb.cast::<E>());
+        let (pa_pairs, pb_pairs) = (pa.wrapping_add(a_len), pb.wrapping_add(nc_max * kc_max));
         for ic in (0..m).step_by(chunk) {
             let mc = chunk.min(m - ic);
             // the packed rows, their count rounded up to MR, and the first row of this product in them
@@ -319,6 +352,13 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                     unsafe { s.pack_rows(plan, ic, mc, pa) };
                     (pa.cast_const(), mc.div_ceil(mr) * mr, 0)
                 }
+            };
+            let (apack, mpad, row0) = if plan.pairs {
+                // SAFETY: the rows row0..row0 + mc of the packed A exist; `pa_pairs` has room for their pairs.
+                unsafe { pair_rows(apack.cast(), mpad, row0, mc, k, kcb, mr, pa_pairs.cast()) };
+                (pa_pairs.cast_const(), mc.div_ceil(mr) * mr, 0)
+            } else {
+                (apack, mpad, row0)
             };
             for jc in (0..n).step_by(ncb) {
                 let nc = ncb.min(n - jc);
@@ -334,9 +374,17 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                         b.pack(plan, p0, kc, jc, nc, pb, width);
                         (pb.cast_const(), width)
                     });
+                    // the kernel's depth steps, and where the block's A panels start (in units of mpad)
+                    let (pb, ldb, depth, a_block) = if plan.pairs {
+                        // SAFETY: the block has kc rows of width elements ldb apart; `pb_pairs` has room for its pairs.
+                        unsafe { pack::pair_panel(kc, width, pb.cast(), ldb, pb_pairs.cast()) };
+                        (pb_pairs.cast_const(), width, kc.div_ceil(2), p0 / 2)
+                    } else {
+                        (pb, ldb, kc, p0)
+                    };
                     for ir in (0..mc).step_by(mr) {
-                        // A micro-panel of packed rows row0 + ir..: K block p0 at p0·mpad, its row r at r·kc
-                        let ap = apack.wrapping_add(p0 * mpad + (row0 + ir) * kc);
+                        // A micro-panel of packed rows row0 + ir..: K block at a_block·mpad, its row r at r·depth
+                        let ap = apack.wrapping_add(a_block * mpad + (row0 + ir) * depth);
                         let rows = mr.min(mc - ir);
                         let init = match block_init {
                             // bias of rows ic + ir..
@@ -358,9 +406,9 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                             // column stride is valid C; an edge tile goes through a local buffer.
                             unsafe {
                                 if rows == mr && cols == nr && csc == 1 {
-                                    (plan.kernel)(kc, ap, bp, ldb, &tile);
+                                    (plan.kernel)(depth, ap, bp, ldb, &tile);
                                 } else {
-                                    edge(plan, kc, ap, bp, ldb, &tile, rows, cols, csc);
+                                    edge(plan, depth, ap, bp, ldb, &tile, rows, cols, csc);
                                 }
                             }
                         }
@@ -369,6 +417,27 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
             }
         }
     });
+}
+
+/// The packed rows row0..row0 + mc of an A (layout of [`Strided::pack_rows`], `mpad` rows, depth k in
+/// blocks of kcb) as bf16 pairs into `dst`: block p0 at (p0 / 2)·mpad', panel p of it at p·MR·ceil(kc / 2),
+/// mpad' = mc rounded up to MR.
+///
+/// # Safety
+/// The rows exist in `src`; `dst` has room for mpad'·ceil(k / 2) elements.
+#[allow(clippy::too_many_arguments)]
+unsafe fn pair_rows(src: *const f32, mpad: usize, row0: usize, mc: usize, k: usize, kcb: usize, mr: usize, dst: *mut f32) {
+    let mpad_pairs = mc.div_ceil(mr) * mr;
+    for p0 in (0..k).step_by(kcb) {
+        let kc = kcb.min(k - p0);
+        for p in 0..mc.div_ceil(mr) {
+            // source panel: block p0 at p0·mpad, rows row0 + p·MR.. at (row0 + p·MR)·kc; MR wide, depth-major
+            let from = src.wrapping_add(p0 * mpad + (row0 + p * mr) * kc);
+            let to = dst.wrapping_add(p0 / 2 * mpad_pairs + p * mr * kc.div_ceil(2));
+            // SAFETY: both panels lie in their buffers (the contract).
+            unsafe { pack::pair_panel(kc, mr, from, mr, to) };
+        }
+    }
 }
 
 /// A tile of `rows` x `cols` (< MR x NR, or C with non-unit column stride): the micro-kernel runs on

@@ -4,7 +4,7 @@
 //! bitwise equal on the two FMA paths; the selected path; the measured peak.
 mod common;
 
-use _core::gemm::{cpu_info, fma_peak_gflops, gemm, gemm_ex, gemm_par_with, matmul_par, Epilogue, Isa, Plan};
+use _core::gemm::{cpu_info, fma_peak_gflops, gemm, gemm_ex, gemm_par_with, matmul_par, round_to_bf16, Epilogue, Isa, Plan};
 use common::Rng;
 use ndarray::{Array2, ShapeBuilder};
 
@@ -60,6 +60,34 @@ fn gemm_every_path_matches_f64_product_for_layouts_alpha_beta() {
                 gemm_ex(plan, 1.0, a.view(), b.view(), 0.0, cn.view_mut(), Epilogue::default());
                 assert!(max_err(&cn, &a64.dot(&b64)) < tol(k), "{} {m}x{k}x{n} beta 0 over NaN", isa.name());
             }
+        }
+    }
+}
+
+#[test]
+fn bf16_plan_sums_products_of_bf16_rounded_operands_in_f32() {
+    let Some(plan) = Plan::<f32>::bf16() else {
+        // no AVX512_BF16 here (or MIPNET_ISA chose a narrower path): convolutions fall back to f32
+        eprintln!("no bf16 plan on this CPU / path");
+        #[cfg(target_arch = "x86_64")]
+        assert!(!(Isa::selected() == Isa::Avx512 && std::arch::is_x86_feature_detected!("avx512bf16")));
+        return;
+    };
+    assert!(plan.pairs && plan.isa == Isa::Avx512);
+    let mut rng = Rng::new(5);
+    for &(m, k, n) in SIZES {
+        for (ta, tb) in [(false, false), (true, true)] {
+            let (a, b) = (random(&mut rng, m, k, ta), random(&mut rng, k, n, tb));
+            let c0 = random(&mut rng, m, n, false);
+            // the exact product of the operands rounded to bf16, which is what the kernel multiplies
+            let want = a.mapv(|x| f64::from(round_to_bf16(x))).dot(&b.mapv(|x| f64::from(round_to_bf16(x))));
+            let mut c = Array2::<f32>::from_elem((m, n), f32::NAN);
+            gemm_ex(plan, 1.0, a.view(), b.view(), 0.0, c.view_mut(), Epilogue::default());
+            let err = max_err(&c, &want);
+            assert!(err < tol(k), "bf16 {m}x{k}x{n} ta={ta} tb={tb}: err {err}");
+            let mut c1 = c0.clone();
+            gemm_ex(plan, 1.0, a.view(), b.view(), 1.0, c1.view_mut(), Epilogue::default());
+            assert!(max_err(&c1, &(want + c0.mapv(f64::from))) < tol(k), "bf16 {m}x{k}x{n} beta 1");
         }
     }
 }

@@ -26,7 +26,8 @@ from . import errors
 from .autograd import enable_grad, is_grad_enabled, no_grad
 from .tensor import Tensor, tensor
 from .random import manual_seed
-from . import autograd, ops, nn, optim, profiler, random, serialization, utils
+from .amp import autocast
+from . import amp, autograd, ops, nn, optim, profiler, random, serialization, utils
 from . import model, stereo, underwater, data, training
 from . import inference, distributed  # mipnet.distributed imports Ray only when it runs (the [ray] extra)
 from .model import MIPNet, MIPNetConfig, Stream, load
@@ -71,6 +72,6 @@ def __getattr__(name: str):
 
 
 __all__ = ["MIPNet", "MIPNetConfig", "Stream", "load", "match_confidence", "Tensor", "tensor", "no_grad", "enable_grad",
-           "is_grad_enabled", "manual_seed", "set_num_threads", "get_num_threads", "__version__", "rectify", "export_onnx",
-           "autograd", "ops", "nn", "optim", "profiler", "random", "serialization", "utils", "errors",
+           "is_grad_enabled", "autocast", "manual_seed", "set_num_threads", "get_num_threads", "__version__", "rectify", "export_onnx",
+           "amp", "autograd", "ops", "nn", "optim", "profiler", "random", "serialization", "utils", "errors",
            "model", "stereo", "underwater", "data", "training", "inference", "distributed"]

@@ -152,6 +152,8 @@ macro_rules! isa_entry {
 isa_entry!(avx512, super::simd::Avx512, "avx512f");
 #[cfg(target_arch = "x86_64")]
 isa_entry!(avx2, super::simd::Avx2, "avx2,fma");
+#[cfg(target_arch = "x86_64")]
+isa_entry!(avx512_bf16, super::simd::Avx512Bf16, "avx512f,avx512bf16");
 
 /// [`micro`] on the portable path.
 ///

@@ -273,3 +273,57 @@ unsafe fn transpose8(src: *const f32, ss: isize, dst: *mut f32, ds: usize) {
         }
     }
 }
+
+/// The bf16 bits of x, rounded to nearest even (NaN stays a quiet NaN).
+#[inline(always)]
+pub(crate) fn bf16_bits(x: f32) -> u32 {
+    let b = x.to_bits();
+    if x.is_nan() {
+        return 0x7FC0;
+    }
+    // add half an ulp of bf16 (less one, plus the kept lowest bit: ties to even), keep the high 16 bits
+    b.wrapping_add(0x7FFF + ((b >> 16) & 1)) >> 16
+}
+
+/// `dst[q·w + j]` = the bf16 pair (src[2q·ld + j], src[(2q + 1)·ld + j]) for q < ceil(kc / 2), j < w, the
+/// even depth in the low half, 0 past depth kc: a depth-major f32 panel (w wide, rows `ld` apart) as the
+/// panel of bf16 pairs [`super::simd::Avx512Bf16`] reads, ceil(kc / 2) rows of w f32-sized elements.
+/// Runs of 16 columns go through `vcvtne2ps2bf16` (the same rounding as [`bf16_bits`], denormals to 0).
+///
+/// # Safety
+/// `src` has kc rows of w readable elements `ld` apart, `dst` room for ceil(kc / 2)·w elements; the CPU
+/// has AVX512_BF16 (only the bf16 plan calls this).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512bf16")]
+pub(crate) unsafe fn pair_panel(kc: usize, w: usize, src: *const f32, ld: usize, dst: *mut f32) {
+    use std::arch::x86_64::*;
+    // output element 2j takes bf16 j (the even row's column j), 2j + 1 takes bf16 16 + j (the odd row's)
+    let interleave = _mm512_set_epi16(31, 15, 30, 14, 29, 13, 28, 12, 27, 11, 26, 10, 25, 9, 24, 8, 23, 7, 22, 6, 21, 5,
+                                      20, 4, 19, 3, 18, 2, 17, 1, 16, 0);
+    let w16 = w / 16 * 16;
+    for q in 0..kc.div_ceil(2) {
+        // SAFETY: rows 2q and 2q + 1 < kc of src and row q of dst are in their buffers (the contract).
+        unsafe {
+            let even = src.add(2 * q * ld);
+            let odd = (2 * q + 1 < kc).then(|| src.add((2 * q + 1) * ld));
+            let out = dst.add(q * w);
+            for j in (0..w16).step_by(16) {
+                // columns j..j + 16 of both rows: 16 pairs, the odd row 0 past depth kc
+                let e = _mm512_loadu_ps(even.add(j));
+                let o = odd.map_or(_mm512_setzero_ps(), |o| _mm512_loadu_ps(o.add(j)));
+                let halves: __m512i = std::mem::transmute(_mm512_cvtne2ps_pbh(o, e));
+                _mm512_storeu_si512(out.add(j).cast(), _mm512_permutexvar_epi16(interleave, halves));
+            }
+            for j in w16..w {
+                let high = odd.map_or(0, |o| bf16_bits(*o.add(j)) << 16);
+                *out.add(j) = f32::from_bits(bf16_bits(*even.add(j)) | high);
+            }
+        }
+    }
+}
+
+/// Off x86 there is no bf16 plan, so nothing calls this.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) unsafe fn pair_panel(_: usize, _: usize, _: *const f32, _: usize, _: *mut f32) {
+    unreachable!("pair_panel: no bf16 plan off x86")
+}

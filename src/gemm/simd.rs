@@ -38,6 +38,11 @@ pub(crate) struct Avx2;
 /// The portable path.
 #[derive(Clone, Copy)]
 pub(crate) struct Generic;
+/// AVX-512 with AVX512_BF16 on panels of bf16 pairs: each f32-sized element of A and B holds two bf16
+/// values of consecutive depths (`pack::pair_panel`), and `fma` is `vdpbf16ps` (both products of a pair
+/// added to the f32 accumulator). Loads, stores and the epilogue are those of [`Avx512`] on f32.
+#[derive(Clone, Copy)]
+pub(crate) struct Avx512Bf16;
 
 /// Implements `Simd<$e>` for an x86 ISA from its intrinsics (one line per operation).
 #[cfg(target_arch = "x86_64")]
@@ -112,6 +117,51 @@ x86_simd!(Avx2, f64, std::arch::x86_64::__m256d, 4, zero _mm256_setzero_pd, set1
           storeu _mm256_storeu_pd, add _mm256_add_pd, fmadd _mm256_fmadd_pd, max _mm256_max_pd, sum sum_lanes::<f64, Avx2>);
 
 /// The lanes of `v` added in order, through memory (for paths without a reduction intrinsic).
+#[cfg(target_arch = "x86_64")]
+unsafe impl Simd<f32> for Avx512Bf16 {
+    type V = std::arch::x86_64::__m512;
+    const LANES: usize = 16;
+    #[inline(always)]
+    unsafe fn zero() -> Self::V {
+        unsafe { <Avx512 as Simd<f32>>::zero() }
+    }
+    #[inline(always)]
+    unsafe fn splat(x: f32) -> Self::V {
+        // the pair's bits, broadcast unchanged (never an arithmetic operation on them)
+        unsafe { std::arch::x86_64::_mm512_castsi512_ps(std::arch::x86_64::_mm512_set1_epi32(x.to_bits() as i32)) }
+    }
+    #[inline(always)]
+    unsafe fn load(p: *const f32) -> Self::V {
+        unsafe { <Avx512 as Simd<f32>>::load(p) }
+    }
+    #[inline(always)]
+    unsafe fn store(p: *mut f32, v: Self::V) {
+        unsafe { <Avx512 as Simd<f32>>::store(p, v) }
+    }
+    #[inline(always)]
+    unsafe fn add(a: Self::V, b: Self::V) -> Self::V {
+        unsafe { <Avx512 as Simd<f32>>::add(a, b) }
+    }
+    #[inline(always)]
+    unsafe fn fma(a: Self::V, b: Self::V, c: Self::V) -> Self::V {
+        // c + a.bf16[2l]·b.bf16[2l] + a.bf16[2l+1]·b.bf16[2l+1] in lane l
+        use std::arch::x86_64::{__m512bh, _mm512_dpbf16_ps};
+        unsafe { _mm512_dpbf16_ps(c, std::mem::transmute::<Self::V, __m512bh>(a), std::mem::transmute::<Self::V, __m512bh>(b)) }
+    }
+    #[inline(always)]
+    unsafe fn relu(a: Self::V) -> Self::V {
+        unsafe { <Avx512 as Simd<f32>>::relu(a) }
+    }
+    #[inline(always)]
+    unsafe fn prefetch(p: *const f32) {
+        unsafe { <Avx512 as Simd<f32>>::prefetch(p) }
+    }
+    #[inline(always)]
+    unsafe fn sum(v: Self::V) -> f32 {
+        unsafe { <Avx512 as Simd<f32>>::sum(v) }
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn sum_lanes<E: crate::Float, S: Simd<E>>(v: S::V) -> E {

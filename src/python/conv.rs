@@ -20,10 +20,13 @@ fn cfg(stride: (i64, i64), padding: (i64, i64)) -> Result<Conv2dCfg> {
     Ok(Conv2dCfg::new(nonneg(stride, "stride")?, nonneg(padding, "padding")?))
 }
 
-/// The selected GEMM plan, with Winograd allowed (f32) or not, keeping transformed kernels or not.
-fn run<F: crate::Float>(winograd: bool, reuse_kernels: bool) -> conv::Conv2dRun<'static, F> {
+/// The selected GEMM plan (its bfloat16 products when `bf16` and the CPU has them, else float32), with
+/// Winograd allowed (f32) or not, keeping transformed kernels or not.
+fn run<F: crate::Float>(winograd: bool, reuse_kernels: bool, bf16: bool) -> conv::Conv2dRun<'static, F> {
     let w = if winograd { conv::Winograd::Auto } else { conv::Winograd::Off };
-    conv::Conv2dRun { winograd: w, reuse_kernels, ..conv::Conv2dRun::selected() }
+    let selected = conv::Conv2dRun::selected();
+    let plan = if bf16 { F::bf16_plan().unwrap_or(selected.plan) } else { selected.plan };
+    conv::Conv2dRun { plan, winograd: w, reuse_kernels }
 }
 
 /// y = conv2d(x, weight) + bias, zero padding; then max(y, 0) when `relu` (fused into the GEMM).
@@ -39,20 +42,23 @@ fn run<F: crate::Float>(winograd: bool, reuse_kernels: bool) -> conv::Conv2dRun<
 ///         F(4x4, 3x3) / F(4, 5) (False: direct).
 ///     reuse_kernels: keep a Winograd kernel's transform for later calls that bring the same weight
 ///         values (found by comparing them; for weights that stay fixed, as at inference).
+///     bf16: float32 products rounded to bfloat16 with float32 sums where the CPU has bf16 dot
+///         products (`bf16_supported()`), float32 elsewhere.
 /// Returns:
 ///     y, (N, Cout, Ho, Wo).
 #[pyfunction]
-#[pyo3(signature = (x, weight, bias=None, stride=(1, 1), padding=(0, 0), relu=false, winograd=true, reuse_kernels=false))]
+#[pyo3(signature = (x, weight, bias=None, stride=(1, 1), padding=(0, 0), relu=false, winograd=true, reuse_kernels=false,
+                    bf16=false))]
 #[allow(clippy::too_many_arguments)]
 fn conv2d_fwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, PyAny>, bias: Option<&Bound<'py, PyAny>>,
-                   stride: (i64, i64), padding: (i64, i64), relu: bool, winograd: bool, reuse_kernels: bool)
+                   stride: (i64, i64), padding: (i64, i64), relu: bool, winograd: bool, reuse_kernels: bool, bf16: bool)
                    -> PyResult<Bound<'py, PyAny>> {
     let cfg = cfg(stride, padding)?;
     float_dispatch!(OP, "input", x, F => {
         let (x, w) = (arr::<F>(OP, "input", x)?, arr::<F>(OP, "weight", weight)?);
         let b = bias.map(|b| arr::<F>(OP, "bias", b)).transpose()?;
         let (xv, wv, bv) = (x.as_array(), w.as_array(), b.as_ref().map(|b| b.as_array()));
-        let y = run_kernel(py, || conv::conv2d_fwd_ex(xv, wv, bv, &cfg, relu, run(winograd, reuse_kernels)))?;
+        let y = run_kernel(py, || conv::conv2d_fwd_ex(xv, wv, bv, &cfg, relu, run(winograd, reuse_kernels, bf16)))?;
         Ok(y.into_pyarray(py).into_any())
     })
 }
@@ -84,7 +90,7 @@ fn conv2d_bwd<'py>(py: Python<'py>, x: &Bound<'py, PyAny>, weight: &Bound<'py, P
     float_dispatch!(OP, "input", x, F => {
         let (x, w, g) = (arr::<F>(OP, "input", x)?, arr::<F>(OP, "weight", weight)?, arr::<F>(OP, "grad_output", grad_output)?);
         let (xv, wv, gv) = (x.as_array(), w.as_array(), g.as_array());
-        let grads = run_kernel(py, || conv::conv2d_bwd_ex(xv, wv, gv, &cfg, need, run(winograd, false)))?;
+        let grads = run_kernel(py, || conv::conv2d_bwd_ex(xv, wv, gv, &cfg, need, run(winograd, false, false)))?;
         Ok((grads.x.map(|a| a.into_pyarray(py)), grads.w.map(|a| a.into_pyarray(py)), grads.b.map(|a| a.into_pyarray(py)))
             .into_pyobject(py)?
             .into_any())

@@ -39,6 +39,14 @@ fn simd_isa() -> PyResult<&'static str> {
     Ok(crate::Isa::from_env()?.name())
 }
 
+/// Whether convolutions can take bfloat16 products here: AVX512_BF16 dot products on the AVX-512 path
+/// (`MIPNET_ISA` unset or avx512). Raises ArgumentError for a bad `MIPNET_ISA`.
+#[pyfunction]
+fn bf16_supported() -> PyResult<bool> {
+    crate::Isa::from_env()?;
+    Ok(crate::gemm::Plan::<f32>::bf16().is_some())
+}
+
 /// Called by `os.register_at_fork(after_in_child=...)`: the child rebuilds the pool on first use.
 #[pyfunction]
 fn _reset_after_fork() {
@@ -52,6 +60,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(_reset_after_fork, m)?)?;
     m.add_function(wrap_pyfunction!(simd_isa, m)?)?;
+    m.add_function(wrap_pyfunction!(bf16_supported, m)?)?;
     errors::register(m)?;
     act::register(m)?;
     conv::register(m)?;

@@ -59,7 +59,8 @@ def infer_on_ray(args: argparse.Namespace, calib, read: Callable) -> int | None:
                             vmax=args.vmax, z_far=args.z_far)
     report = infer_dataset(args.left, args.right, args.output_directory, address=_address(args),
                            workers=args.ray_workers, iters=tuple(args.iters), weights=load_model(args.weights),
-                           seed=args.seed, scale=args.scale, calib=calib, options=options, read=read)
+                           seed=args.seed, scale=args.scale, calib=calib, options=options, read=read,
+                           precision=args.precision)
     skipped = f" (skipped {len(report.skipped)} pair(s) whose outputs were complete)" if report.skipped else ""
     print(f"wrote {len(report.run)} disparity map(s) to {args.output_directory}/{skipped}")
     if report.total == 1 and report.failed:

@@ -30,10 +30,11 @@ import json
 import math
 import sys
 
+from ..amp import autocast
 from ..data.registry import DATASETS
 from ..errors import ArgumentError
-from .common import (USER_ERRORS, Failures, ImageSize, add_iters, load_model, positive_float, positive_int,
-                     progress_bar, require_module, unit_fraction)
+from .common import (USER_ERRORS, Failures, ImageSize, add_iters, add_precision, load_model, positive_float,
+                     positive_int, progress_bar, require_module, unit_fraction)
 from .sequence_eval import add_sequence_arguments, run_sequence_eval
 
 METHODS = ("mipnet", "sgbm")
@@ -54,6 +55,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--weights", metavar="FILE", help="weights file (.safetensors written by MIPNet.save; "
                                                      "default: the shipped weights)")
     add_iters(p)
+    add_precision(p)
     p.add_argument("--scale", type=positive_float, default=1.0, help="MIPNet's input resize factor (as infer)")
     p.add_argument("--methods", default="mipnet,sgbm",
                    help="comma-separated: mipnet, sgbm (default both; sgbm needs OpenCV)")
@@ -152,6 +154,11 @@ class ResultLog:
 
 
 def run(args: argparse.Namespace) -> int:
+    with autocast(enabled=args.precision == "bf16"):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from ..model import pretrained
     from ..stereo.evaluation import COVERAGES, evaluate_coverages, format_table, mipnet_rows, result_rows
 

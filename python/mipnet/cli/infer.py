@@ -25,12 +25,13 @@ from typing import Iterator
 
 import numpy as np
 
+from ..amp import autocast
 from ..errors import ArgumentError
 from ..inference.outputs import OutputWriter
 from ..inference.pairs import pair_reader, read_pair, resolve_pairs
 from ..stereo.rectify import open_calibration
-from .common import (USER_ERRORS, Failures, PairError, add_iters, load_model, naming, positive_float, positive_int,
-                     progress_bar, unit_fraction)
+from .common import (USER_ERRORS, Failures, PairError, add_iters, add_precision, load_model, naming, positive_float,
+                     positive_int, progress_bar, unit_fraction)
 from .distributed import add_ray_arguments, infer_on_ray
 from .stream import add_stream_arguments, run_stream, wants_stream
 
@@ -83,6 +84,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="mark pixels whose match confidence is below C invalid (inf in .npy/.pfm, black in .png, "
                         "no depth or point); 0.5 keeps ~97%% of the pixels in air and drops open water under a "
                         "veil (docs/training.md); implies --confidence")
+    add_precision(p)
     add_stream_arguments(p)
     add_ray_arguments(p, "with --ray: Ray actors, each holding one model and running on its node's "
                          "cores / actors there (default: one per node)")
@@ -124,6 +126,11 @@ def _batches(pairs: list[tuple[str, str, str]], size: int, failures: Failures, p
 
 
 def run(args: argparse.Namespace) -> int:
+    with autocast(enabled=args.precision == "bf16"):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     if wants_stream(args):  # a stereo video: mipnet.cli.stream
         return run_stream(args)
     if args.vmin is not None and args.vmax is not None and not args.vmin < args.vmax:

@@ -27,6 +27,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
+from ..amp import autocast
 from ..errors import MipnetError
 from ..inference.failures import USER_ERRORS, naming
 from ..inference.outputs import OutputOptions, OutputWriter, infer_pair
@@ -69,7 +70,8 @@ class PairActor:
     object reference to (config JSON, state dict), put once by the driver and shared by every actor."""
 
     def __init__(self, weights: list, out: str, options: OutputOptions, calib, read: Callable,
-                 iters: tuple[int, int], seed: int, scale: float, cpus_by_node: dict[str, int], per_node: int):
+                 iters: tuple[int, int], seed: int, scale: float, cpus_by_node: dict[str, int], per_node: int,
+                 precision: str = "fp32"):
         import ray
 
         from ..model.network import MIPNet
@@ -81,6 +83,7 @@ class PairActor:
         self.model.eval()
         self.write = OutputWriter(options, Path(out), calib)
         self.read, self.iters, self.seed, self.scale = read, iters, seed, scale
+        self.bf16 = precision == "bf16"
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, list]:
         rows: dict[str, list] = {key: [] for key in ("name", "ok", "reason", "traceback", "seconds", "threads")}
@@ -89,7 +92,8 @@ class PairActor:
             start = time.perf_counter()
             reason = trace = ""
             try:
-                infer_pair(self.model, left, right, name, self.write, self.iters, self.seed, self.scale, read=self.read)
+                with autocast(enabled=self.bf16):
+                    infer_pair(self.model, left, right, name, self.write, self.iters, self.seed, self.scale, read=self.read)
             except USER_ERRORS as error:
                 reason, trace = naming((left, right), error), traceback.format_exc()
             for key, value in (("name", name), ("ok", not reason), ("reason", reason), ("traceback", trace),
@@ -175,7 +179,7 @@ def _quiet_ray_data(ray) -> Iterator[None]:
 def infer_dataset(left_glob: str | None, right_glob: str | None, out_dir: str | os.PathLike, address: str | None = None,
                   workers: int | None = None, iters: Sequence[int] = (6, 6), weights=None, *, seed: int = 20,
                   scale: float = 1.0, calib=None, options: OutputOptions | None = None, read: Callable | None = None,
-                  progress: bool = True, stall_timeout: float = STALL_TIMEOUT) -> InferReport:
+                  progress: bool = True, stall_timeout: float = STALL_TIMEOUT, precision: str = "fp32") -> InferReport:
     """Disparity maps for every pair the globs name, on a Ray cluster; resumable.
 
     Parameters
@@ -191,6 +195,9 @@ def infer_dataset(left_glob: str | None, right_glob: str | None, out_dir: str | 
         Actors, each with one model (default: one per node); each runs on its node's cores / actors there.
     iters, seed, scale
         As ``model(left, right, iters=..., seed=..., scale=...)``.
+    precision : str, default "fp32"
+        "bf16": every actor runs the network under ``mipnet.autocast(dtype="bfloat16")`` (``mipnet infer
+        --precision``).
     weights : str, MIPNet or None
         A weights file (on the driver), a model, or None for the shipped weights.
     calib : str, dict or Rectifier, optional
@@ -250,7 +257,8 @@ def infer_dataset(left_glob: str | None, right_glob: str | None, out_dir: str | 
             PairActor, batch_size=1, compute=ray.data.ActorPoolStrategy(size=workers), num_cpus=ACTOR_CPUS,
             fn_constructor_kwargs=dict(weights=[ray.put((model.config.to_json(), model.state_dict()))], out=str(out),
                                        options=options, calib=calib, read=read, iters=tuple(iters), seed=seed,
-                                       scale=scale, cpus_by_node=cpus, per_node=actors_per_node(workers, len(cpus))))
+                                       scale=scale, cpus_by_node=cpus, per_node=actors_per_node(workers, len(cpus)),
+                                       precision=precision))
         bar = tqdm(total=len(todo), desc="infer", unit="pair", disable=not progress, file=sys.stderr,
                    dynamic_ncols=True, mininterval=0.5 if sys.stderr.isatty() else 30.0)
         start = time.perf_counter()

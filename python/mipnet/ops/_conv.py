@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from .. import _core
+from ..amp import bf16_active
 from ..autograd import Function, is_grad_enabled
 from ..errors import ArgumentError
 from ..tensor import Tensor
@@ -34,7 +35,8 @@ class _Conv2d(Function):
     def forward(ctx, x, weight, bias, stride, padding):
         ctx.save_for_backward(x, weight)
         ctx.stride, ctx.padding = stride, padding
-        return _core.conv2d_fwd(x, weight, bias, stride, padding, winograd=WINOGRAD, reuse_kernels=reuse_kernels())
+        return _core.conv2d_fwd(x, weight, bias, stride, padding, winograd=WINOGRAD, reuse_kernels=reuse_kernels(),
+                                bf16=bf16_active())
 
     @staticmethod
     def backward(ctx, g):
@@ -52,7 +54,7 @@ class _Conv2dRelu(Function):
     @staticmethod
     def forward(ctx, x, weight, bias, stride, padding):
         y = _core.conv2d_fwd(x, weight, bias, stride, padding, relu=True, winograd=WINOGRAD,
-                             reuse_kernels=reuse_kernels())
+                             reuse_kernels=reuse_kernels(), bf16=bf16_active())
         ctx.save_for_backward(x, weight, y)
         ctx.stride, ctx.padding = stride, padding
         return y

@@ -8,6 +8,7 @@ One step is ``zr = conv(hx)`` (z and r from one convolution), ``q = gru_candidat
 from __future__ import annotations
 
 from .. import _core
+from ..amp import bf16_active
 from ..autograd import Function
 from ..tensor import Tensor
 from ._common import as_tensor, pair
@@ -71,7 +72,7 @@ class _GruCandidate(Function):
         ctx.save_for_backward(zr, hx, weight)
         ctx.padding = padding
         return _core.conv2d_fwd(_core.gru_reset_fwd(zr, hx), weight, bias, (1, 1), padding, winograd=_conv.WINOGRAD,
-                                reuse_kernels=_conv.reuse_kernels())
+                                reuse_kernels=_conv.reuse_kernels(), bf16=bf16_active())
 
     @staticmethod
     def backward(ctx, g):
