@@ -2,7 +2,7 @@
 
     python -m mipnet.bench model [--threads 2] [--sizes 384x512 768x1024 1088x1920]
                                  [--train 384x512x2:6,6 128x256x4:3,3] [--engines ...] [--rounds 3]
-                                 [--profile]
+                                 [--precision fp32 bf16] [--profile]
 
 Engines: ``mipnet``; ``torch`` (eager, the reference model of tests_py/reference); ``openvino`` (fp32
 hint) and ``onnxruntime`` (CPU), both running mipnet's own ONNX export of the same weights
@@ -16,7 +16,10 @@ measurement runs in a fresh subprocess that imports only its own engine (mipnet 
 initial weights from a file), so its peak resident memory (ru_maxrss) is that engine's alone.
 Before any time is printed, the disparities of every engine are checked against mipnet's (at most
 1e-3 px apart) and the training losses of mipnet and torch against each other (1e-2 relative).
-``--rounds N`` runs every case N times with the engines taking turns and prints the median with its
+``--precision fp32 bf16`` adds the row ``mipnet bf16`` to each eval case: mipnet under
+``mipnet.autocast(dtype="bfloat16")`` (float32 with a warning on a CPU without bf16 dot products), checked
+against mipnet's float32 disparity by its mean difference (at most 0.1 px) rather than by the 1e-3 px of the
+float32 engines. ``--rounds N`` runs every case N times with the engines taking turns and prints the median with its
 range (a shared VM's speed drifts by tens of percent within minutes). ``--profile`` adds mipnet's
 profiler table (``mipnet.profiler``) for the first eval size and the first
 train case.
@@ -39,6 +42,10 @@ REFERENCE_HINT = "run from the repository root (the torch reference lives in tes
 ENGINES = ("mipnet", "torch", "openvino", "onnxruntime")
 #: Largest disparity difference between engines before times are printed (px).
 AGREEMENT_PX = 1e-3
+#: Largest mean disparity difference of mipnet in bfloat16 from mipnet in float32 (px).
+AGREEMENT_BF16_MEAN_PX = 0.1
+#: The row of mipnet under ``mipnet.autocast(dtype="bfloat16")`` (``--precision bf16``).
+BF16 = "mipnet bf16"
 #: Largest relative difference of the training losses of mipnet and torch. Looser than eval: in
 #: training mode the iAFF BatchNorms normalise 2N samples of globally pooled features, which for
 #: small batches of similar images amplifies float32 rounding.
@@ -67,7 +74,7 @@ d0 = rng.uniform(0.5, 3.0, (n, 1, h // 16, w // 16)).astype(np.float32)
 gt = np.full((n, 1, h, w), 4.0, np.float32)
 engine, mode = a["engine"], a["mode"]
 profile = None
-if engine == "mipnet":
+if engine.startswith("mipnet"):
     # the reference's initial weights, from the file the parent wrote (torch is not imported here)
     import mipnet
     mipnet.set_num_threads(a["threads"])
@@ -76,7 +83,10 @@ if engine == "mipnet":
         model.load_state_dict({k: f[k] for k in f.files})
     if mode == "eval":
         model.eval()
-        run = lambda: model(left, right, iters=iters, disp_init=d0)
+        bf16 = mipnet.autocast(dtype="bfloat16", enabled=engine == "mipnet bf16")
+        def run():
+            with bf16:
+                return model(left, right, iters=iters, disp_init=d0)
     else:
         model.train()
         opt = mipnet.optim.AdamW(model.parameters(), lr=1e-4, weight_decay=1e-5)
@@ -185,7 +195,7 @@ def _child(script: str, args: dict, threads: int) -> dict:
 def _installed(engine: str) -> bool:
     import importlib.util
 
-    module = {"mipnet": "mipnet", "torch": "torch", "openvino": "openvino", "onnxruntime": "onnxruntime"}[engine]
+    module = {"mipnet": "mipnet", BF16: "mipnet", "torch": "torch", "openvino": "openvino", "onnxruntime": "onnxruntime"}[engine]
     return importlib.util.find_spec(module) is not None and (engine in ("mipnet", "torch") or importlib.util.find_spec("onnx") is not None)
 
 
@@ -197,7 +207,7 @@ def _parse_train(spec: str) -> tuple[int, int, int, tuple[int, int]]:
 
 
 def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], engines: Sequence[str] = ENGINES,
-        profile: bool = False, warmup: int = 1, rounds: int = 1) -> int:
+        profile: bool = False, warmup: int = 1, rounds: int = 1, precisions: Sequence[str] = ("fp32",)) -> int:
     """Prints the header, the agreement check and the table; returns the exit status.
 
     Each case runs every engine ``rounds`` times, a fresh process each, the engines taking turns
@@ -232,8 +242,9 @@ def run(threads: int, sizes: Sequence[tuple[int, int]], train: Sequence[str], en
                 err = _child(_EXPORT, {**case, "onnx": onnx}, threads).get("error")
                 if err:
                     print(f"mipnet.export_onnx at {h}x{w} failed: {err}", file=sys.stderr)
-            outs = {e: os.path.join(tmp, f"{e}_{h}x{w}.npy") for e in engines}
-            results = _rounds(rounds, engines, lambda e: {**case, "engine": e, "onnx": onnx, "out": outs[e]},
+            evaluated = list(engines) + ([BF16] if "bf16" in precisions and "mipnet" in engines else [])
+            outs = {e: os.path.join(tmp, f"{e.replace(' ', '_')}_{h}x{w}.npy") for e in evaluated}
+            results = _rounds(rounds, evaluated, lambda e: {**case, "engine": e, "onnx": onnx, "out": outs[e]},
                               threads, f"eval {h}x{w}")
             status |= _agree(f"eval {h}x{w}", results, outs, "px")
             rows.append((f"eval {h}x{w}", h * w / 1e6, results))
@@ -293,6 +304,13 @@ def _agree(name: str, results: dict, outs: dict, kind: str) -> int:
         if theirs.shape != ours.shape:
             print(f"{name}: {e} output shape {theirs.shape} vs mipnet {ours.shape}")
             return 1
+        if e == BF16:
+            mean = float(np.abs(theirs - ours).mean())
+            print(f"{name}: {BF16} against mipnet float32: mean |difference| {mean:.3f} px, max "
+                  f"{float(np.abs(theirs - ours).max()):.2f} px")
+            if mean > AGREEMENT_BF16_MEAN_PX:
+                return 1
+            continue
         d = float(np.abs(theirs - ours).max())
         d = d / max(float(np.abs(ours).max()), 1e-30) if kind == "rel" else d
         diffs.append(f"{e} {d:.1e}")

@@ -318,6 +318,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                        help="fresh runs per engine and case, the engines taking turns; the table gives the median "
                             "(default 1)")
     model.add_argument("--profile", action="store_true", help="also print mipnet's profile of eval and train")
+    model.add_argument("--precision", nargs="+", default=["fp32"], choices=("fp32", "bf16"),
+                       help="bf16 adds a row of mipnet under mipnet.autocast(dtype='bfloat16') to each eval case "
+                            "(default fp32 only)")
     precision = sub.add_parser("precision", help="float32 against float64 per layer group in a training-mode "
                                                   "forward, mipnet beside torch")
     precision_args(precision)
@@ -329,7 +332,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         hw = lambda s: tuple(int(v) for v in s.lower().split("x"))  # noqa: E731
         return run_model(args.threads, [hw(s) for s in args.sizes], args.train, args.engines, args.profile, args.warmup,
-                         max(1, args.rounds))
+                         max(1, args.rounds), args.precision)
     try:
         import torch
     except ImportError:
