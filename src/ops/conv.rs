@@ -28,7 +28,6 @@ use super::lanes;
 use crate::gemm::{self, gemm_ex, Epilogue, Init, PackB, Plan, Prepacked, SourceA, Strided};
 use crate::tensor::{check_nonempty, fixed, zeros};
 use crate::{Error, Float, Result};
-use ndarray::linalg::general_mat_mul;
 use ndarray::{s, Array1, Array2, Array3, Array4, ArrayView, ArrayView2, ArrayViewD, ArrayViewMut2, Axis, CowArray, Dimension, Ix1, Ix4};
 use rayon::prelude::*;
 use std::any::Any;
@@ -750,8 +749,8 @@ const NHWC_MIN_CIN: usize = 16;
 /// - pixel-major (Cin >= `NHWC_MIN_CIN`, not pointwise): x is transposed once to `xᵀ[n][p, c]`, and
 ///   K is ordered tap-major (k' = t·Cin + c), so each B row (one pixel) is `taps` contiguous runs
 ///   of Cin values of xᵀ (zeros for taps in the padding); the result is permuted back to c·taps + t;
-/// - otherwise: cols tiles in this thread's scratch (x itself when pointwise), one plain product per
-///   tile by the matrixmultiply crate (ndarray's `general_mat_mul`).
+/// - otherwise: cols tiles in this thread's scratch (x itself when pointwise), packed transposed;
+///   the GEMM computes dWᵀ instead where that pads less to the micro-tile (Cout wider than K).
 ///
 /// A stride-1 3x3 f32 conv with enough channels takes [`winograd::weight_grad`] instead, a stride-1
 /// conv with one or two output channels [`tap_major::weight_grad`].
@@ -792,6 +791,10 @@ fn weight_grad<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], dy: &[F]) -> Res
     } else {
         Vec::new()
     };
+    // the GEMM dY·colsᵀ (M = Cout, N = K) or its transpose cols·dYᵀ (M = K, N = Cout), whichever
+    // pads less to whole MR x NR micro-tiles (same products summed in the same order either way)
+    let padded = |rows: usize, cols: usize| rows.next_multiple_of(plan.mr) * cols.next_multiple_of(plan.nr);
+    let transposed = !nhwc && padded(g.k(), g.cout) < padded(g.cout, g.k());
     let groups = pieces.len();
     let mut dw = Array2::<F>::zeros((g.cout, g.k()));
     with_buf(&PARTIALS, (groups - 1) * wlen, |rest: &mut [F]| {
@@ -816,10 +819,13 @@ fn weight_grad<F: Float>(run: Conv2dRun<F>, g: &Geom, xs: &[F], dy: &[F]) -> Res
                 }
                 let xn = &xs[n * g.img()..(n + 1) * g.img()];
                 for_each_cols_block(g, xn, 0..g.cin, g.cin, px.clone(), |_, cols| {
-                    // dW_group (+)= dY[n][:, tile] · cols[:, tile]ᵀ: a plain product of long depth (the tile's
-                    // pixels), where the matrixmultiply crate (through ndarray) is faster than gemm.rs
-                    // (docs/speed.md, "The GEMM against the matrixmultiply crate")
-                    general_mat_mul(F::one(), &dyt, &cols.t(), beta, &mut part)
+                    if transposed {
+                        // dW_groupᵀ (+)= cols[:, tile] · dY[n][:, tile]ᵀ
+                        gemm_ex(plan, F::one(), cols, dyt.t(), beta, part.view_mut().reversed_axes(), Epilogue::default())
+                    } else {
+                        // dW_group (+)= dY[n][:, tile] · cols[:, tile]ᵀ
+                        gemm_ex(plan, F::one(), dyt, cols.t(), beta, part.view_mut(), Epilogue::default())
+                    }
                 })?;
             }
             Ok::<_, Error>(())
