@@ -120,6 +120,65 @@ def _shown(n: int) -> list[int]:
     return sorted({0, 1, n // 2 - 1, n // 2, n - 1})
 
 
+def block_ops(torch) -> list[tuple[str, Callable, Callable, str, str]]:
+    """The ops of one encoder residual block with iAFF in order: (name, mipnet op, torch op, input, output),
+    each op taking (block, input) and the names naming the activations between them ("x": the block's input;
+    "block": the whole block on "x")."""
+    F = torch.nn.functional
+    norm = lambda x: F.instance_norm(x, eps=1e-5)  # noqa: E731
+    glob = lambda att: getattr(att, "global")  # noqa: E731
+    return [
+        ("conv1 3x3", lambda b, x: b.conv1(x), lambda b, x: b.conv1(x), "x", "c1"),
+        ("norm1 (instance)", lambda b, x: b.norm1(x), lambda b, x: norm(x), "c1", "n1"),
+        ("conv2 3x3", lambda b, x: b.conv2(mipnet.ops.relu(x)), lambda b, x: b.conv2(F.relu(x)), "n1", "c2"),
+        ("proj 1x1", lambda b, x: b.proj(x), lambda b, x: b.proj(x), "x", "p"),
+        ("fuse.att1.local.conv1 1x1", lambda b, x: b.fuse.att1.local.conv1(x), lambda b, x: b.fuse.att1.local.conv1(x),
+         "c2", "l1"),
+        ("fuse.att1.local.bn1 (batch)", lambda b, x: b.fuse.att1.local.bn1(x), lambda b, x: b.fuse.att1.local.bn1(x),
+         "l1", "l2"),
+        ("spatial mean (GAP)", lambda b, x: mipnet.ops.mean(x, (2, 3), keepdim=True),
+         lambda b, x: x.mean(dim=(2, 3), keepdim=True), "c2", "g"),
+        ("fuse.att1.global branch", lambda b, x: glob(b.fuse.att1)(x), lambda b, x: glob(b.fuse.att1)(x), "g", "G"),
+        ("the whole block", lambda b, x: b(x), lambda b, x: b(x), "x", "block"),
+    ]
+
+
+def op_errors(torch, ref, state: dict, images: np.ndarray) -> list[tuple[str, float, float]]:
+    """(op, mipnet's and torch's float32 error against their float64 results) for every op of the encoder's
+    first residual block in training mode, each op fed the exact float64 input (mipnet's float64 chain, which equals
+    torch's to ~1e-15) cast to the type: the mean |f32 - f64| / mean |f64| of its output."""
+    blocks, torch_blocks = {}, {}
+    for dtype, tdt in ((np.float32, torch.float32), (np.float64, torch.float64)):
+        model = mipnet.MIPNet()
+        model.load_state_dict(state)
+        if dtype == np.float64:
+            model.double()
+        blocks[dtype] = next(iter(model.train().encoder.layer1.children()))
+        reference = ref()
+        reference.load_state_dict({k: torch.from_numpy(np.array(v)) for k, v in state.items()})
+        torch_blocks[dtype] = reference.to(tdt).train().encoder.layer1[0]
+    rel = lambda a, b: float(np.mean(np.abs(a - b)) / np.mean(np.abs(b)))  # noqa: E731
+    rows = []
+    with no_grad(), torch.no_grad():
+        acts = {"x": _stem64(state, images)}
+        for name, ours, theirs, src, dst in block_ops(torch):
+            exact = ours(blocks[np.float64], Tensor(acts[src])).numpy()
+            acts[dst] = exact
+            mine = ours(blocks[np.float32], Tensor(acts[src].astype(np.float32))).numpy()
+            t32 = theirs(torch_blocks[np.float32], torch.tensor(acts[src], dtype=torch.float32)).numpy()
+            t64 = theirs(torch_blocks[np.float64], torch.tensor(acts[src])).numpy()
+            rows.append((name, rel(mine, exact), rel(t32, t64)))
+    return rows
+
+
+def _stem64(state: dict, images: np.ndarray) -> np.ndarray:
+    """The encoder stem's float64 output on ``images`` (N,3,H,W in [-1, 1]): the first residual block's input."""
+    model = mipnet.MIPNet()
+    model.load_state_dict(state)
+    with no_grad():
+        return model.double().train().encoder.stem(Tensor(images)).numpy()
+
+
 def table(ours: list[tuple[str, float]], theirs: list[tuple[str, float]]) -> str:
     lines = ["| layer group | mipnet f32 vs f64 | torch f32 vs f64 | mipnet / torch |", "|---|---|---|---|"]
     for (name, a), (_, b) in zip(ours, theirs):
@@ -127,7 +186,8 @@ def table(ours: list[tuple[str, float]], theirs: list[tuple[str, float]]) -> str
     return "\n".join(lines)
 
 
-def run(size: tuple[int, int], n: int, iters: tuple[int, int], threads: int, inputs: str = "scenes") -> int:
+def run(size: tuple[int, int], n: int, iters: tuple[int, int], threads: int, inputs: str = "scenes",
+        ops: bool = False) -> int:
     ref_dir = reference_dir()
     if ref_dir is None:
         print(f"mipnet.bench precision: no torch reference found: {REFERENCE_HINT}", file=sys.stderr)
@@ -148,6 +208,12 @@ def run(size: tuple[int, int], n: int, iters: tuple[int, int], threads: int, inp
     print(machine_header(threads)[0])
     print(f"training-mode forward, {size[0]}x{size[1]} batch {n}, iterations {iters}, the reference's seed-0 "
           f"initialisation, inputs: {inputs}\n")
+    if ops:
+        images = 2 * (np.concatenate(data[:2]) / 255) - 1
+        rows = op_errors(torch, MIPNetTorch, state, images)
+        print("the encoder's first residual block, training mode, each op fed the exact float64 input\n")
+        print(table([(name, a) for name, a, _ in rows], [(name, b) for name, _, b in rows]).replace("layer group", "op"))
+        return 0
     f64 = {"mipnet": mipnet_run(state, np.float64, data, iters, None)}
     features = f64["mipnet"]["stages"][-1]
     f64["torch"] = torch_run(torch, MIPNetTorch, state, np.float64, data, iters, sequence_loss_torch, features)
@@ -165,9 +231,12 @@ def parse_args(parser) -> None:
     parser.add_argument("--threads", type=int, default=2, help="threads for mipnet and torch (default 2)")
     parser.add_argument("--inputs", choices=("scenes", "noise"), default="scenes",
                         help="held-out generated scene pairs (default) or the uniform-noise pairs of the model bench")
+    parser.add_argument("--ops", action="store_true",
+                        help="instead of the network: each op of the encoder's first residual block, fed the exact "
+                             "float64 input (relative error of its output)")
 
 
 def main(args) -> int:
     size = tuple(int(v) for v in args.size.lower().split("x"))
     iters = tuple(int(v) for v in args.iters.split(","))
-    return run(size, args.batch, iters, args.threads, args.inputs)
+    return run(size, args.batch, iters, args.threads, args.inputs, args.ops)
