@@ -52,6 +52,27 @@ def batch(n: int, h: int, w: int, inputs: str = "scenes") -> tuple[np.ndarray, .
     return left, right, gt, valid, d0
 
 
+def _relative(a: np.ndarray, b: np.ndarray) -> float:
+    """mean |a - b| / mean |b|."""
+    return float(np.mean(np.abs(a - b)) / np.mean(np.abs(b)))
+
+
+def _mipnet_model(state: dict, dtype) -> mipnet.MIPNet:
+    """mipnet's network with ``state`` in ``dtype``, in training mode."""
+    model = mipnet.MIPNet()
+    model.load_state_dict(state)
+    if dtype == np.float64:
+        model.double()
+    return model.train()
+
+
+def _torch_model(torch, ref_cls, state: dict, dtype):
+    """The torch reference with ``state`` in ``dtype``, in training mode."""
+    ref = ref_cls()
+    ref.load_state_dict({k: torch.from_numpy(np.array(v)) for k, v in state.items()})
+    return ref.to(torch.float64 if dtype == np.float64 else torch.float32).train()
+
+
 def _encoder_stages(run_stage: Callable[[str, object], object], images: object, to_numpy) -> list[np.ndarray]:
     """The output of every encoder stage, each stage fed the previous one's output."""
     outs, x = [], images
@@ -65,11 +86,7 @@ def mipnet_run(state: dict, dtype, data, iters: tuple[int, int], features: np.nd
     """mipnet's stage outputs, predictions and loss in ``dtype`` (training mode, no gradients), and the
     predictions of the update iterations alone, run on ``features`` (the float64 encoder output) cast to ``dtype``."""
     left, right, gt, valid, d0 = data
-    model = mipnet.MIPNet()
-    model.load_state_dict(state)
-    if dtype == np.float64:
-        model.double()
-    model.train()
+    model = _mipnet_model(state, dtype)
     images = Tensor((2 * (np.concatenate([left, right]) / 255) - 1).astype(dtype))
     forward = lambda: model(left.astype(dtype), right.astype(dtype), iters=iters, disp_init=d0)  # noqa: E731
     with no_grad():
@@ -87,9 +104,7 @@ def torch_run(torch, ref_cls, state: dict, dtype, data, iters: tuple[int, int], 
     """The reference's outputs as :func:`mipnet_run` gives mipnet's."""
     left, right, gt, valid, d0 = data
     tdt = torch.float64 if dtype == np.float64 else torch.float32
-    ref = ref_cls()
-    ref.load_state_dict({k: torch.from_numpy(np.array(v)) for k, v in state.items()})
-    ref.to(tdt).train()
+    ref = _torch_model(torch, ref_cls, state, dtype)
     t = lambda a: torch.tensor(a, dtype=tdt)  # noqa: E731
     images = t(2 * (np.concatenate([left, right]) / 255) - 1)
     forward = lambda: ref(t(left), t(right), iters=iters, disp_init=t(d0))  # noqa: E731
@@ -106,8 +121,7 @@ def torch_run(torch, ref_cls, state: dict, dtype, data, iters: tuple[int, int], 
 def errors(f32: dict, f64: dict) -> list[tuple[str, float]]:
     """(row name, float32 error against float64) for every layer group."""
     mean_px = lambda a, b: float(np.mean(np.abs(a - b)))  # noqa: E731
-    rows = [(f"encoder.{name} (rel)", float(np.mean(np.abs(a - b)) / np.mean(np.abs(b))))
-            for name, a, b in zip(ENCODER_STAGES, f32["stages"], f64["stages"])]
+    rows = [(f"encoder.{name} (rel)", _relative(a, b)) for name, a, b in zip(ENCODER_STAGES, f32["stages"], f64["stages"])]
     rows += [(f"prediction {i} (px)", mean_px(f32["preds"][i], f64["preds"][i])) for i in _shown(len(f64["preds"]))]
     rows.append(("sequence loss (rel)", abs(f32["loss"] - f64["loss"]) / abs(f64["loss"])))
     rows += [(f"updates alone: prediction {i} (px)", mean_px(f32["updates"][i], f64["updates"][i]))
@@ -147,36 +161,20 @@ def op_errors(torch, ref, state: dict, images: np.ndarray) -> list[tuple[str, fl
     """(op, mipnet's and torch's float32 error against their float64 results) for every op of the encoder's
     first residual block in training mode, each op fed the exact float64 input (mipnet's float64 chain, which equals
     torch's to ~1e-15) cast to the type: the mean |f32 - f64| / mean |f64| of its output."""
-    blocks, torch_blocks = {}, {}
-    for dtype, tdt in ((np.float32, torch.float32), (np.float64, torch.float64)):
-        model = mipnet.MIPNet()
-        model.load_state_dict(state)
-        if dtype == np.float64:
-            model.double()
-        blocks[dtype] = next(iter(model.train().encoder.layer1.children()))
-        reference = ref()
-        reference.load_state_dict({k: torch.from_numpy(np.array(v)) for k, v in state.items()})
-        torch_blocks[dtype] = reference.to(tdt).train().encoder.layer1[0]
-    rel = lambda a, b: float(np.mean(np.abs(a - b)) / np.mean(np.abs(b)))  # noqa: E731
+    models = {dtype: _mipnet_model(state, dtype) for dtype in (np.float32, np.float64)}
+    blocks = {dtype: next(iter(model.encoder.layer1.children())) for dtype, model in models.items()}
+    torch_blocks = {dtype: _torch_model(torch, ref, state, dtype).encoder.layer1[0] for dtype in (np.float32, np.float64)}
     rows = []
     with no_grad(), torch.no_grad():
-        acts = {"x": _stem64(state, images)}
+        acts = {"x": models[np.float64].encoder.stem(Tensor(images)).numpy()}
         for name, ours, theirs, src, dst in block_ops(torch):
             exact = ours(blocks[np.float64], Tensor(acts[src])).numpy()
             acts[dst] = exact
             mine = ours(blocks[np.float32], Tensor(acts[src].astype(np.float32))).numpy()
             t32 = theirs(torch_blocks[np.float32], torch.tensor(acts[src], dtype=torch.float32)).numpy()
             t64 = theirs(torch_blocks[np.float64], torch.tensor(acts[src])).numpy()
-            rows.append((name, rel(mine, exact), rel(t32, t64)))
+            rows.append((name, _relative(mine, exact), _relative(t32, t64)))
     return rows
-
-
-def _stem64(state: dict, images: np.ndarray) -> np.ndarray:
-    """The encoder stem's float64 output on ``images`` (N,3,H,W in [-1, 1]): the first residual block's input."""
-    model = mipnet.MIPNet()
-    model.load_state_dict(state)
-    with no_grad():
-        return model.double().train().encoder.stem(Tensor(images)).numpy()
 
 
 def table(ours: list[tuple[str, float]], theirs: list[tuple[str, float]]) -> str:
