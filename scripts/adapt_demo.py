@@ -8,6 +8,7 @@ pairs and the measured pairs are different seeds; they may share a photograph (t
 photograph in five of the collection), never a pair.
 
     python scripts/adapt_demo.py OUT [--pairs 20] [--size 256 320] [--steps 300] [--lr 2e-5] [--weights W]
+    python scripts/adapt_demo.py OUT --resume --steps 600    # continue OUT's adaptation to step 600, measure again
 
 Writes OUT/adapt/ (the adapt run folder: `mipnet infer --weights OUT/adapt/model.safetensors`), OUT/pairs/
 and OUT/result.json with the per-pair and mean EPE / bad-1 / bad-3 before and after.
@@ -69,21 +70,31 @@ def main() -> None:
     parser.add_argument("--crop", type=int, nargs=2, default=(192, 320), metavar=("H", "W"))
     parser.add_argument("--weights", default=None, help="starting weights (default: the shipped ones)")
     parser.add_argument("--iters", type=int, nargs=2, default=(6, 6), help="iterations when measuring")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the adaptation in OUT/adapt to --steps (its own settings kept), measure again")
     args = parser.parse_args()
     height, width = args.size
     adapted_on = PhotoStereo(args.pairs, height, width, seed=EVAL_SEED_START)
     measured_on = PhotoStereo(args.pairs, height, width, seed=EVAL_SEED_START + MEASURED_SEED_OFFSET)
-    write_pairs(adapted_on, args.out / "pairs")
     iters = tuple(args.iters)
-    start = mipnet.load(args.weights) if args.weights else mipnet.MIPNet.pretrained()
+    run = args.out / "adapt"
+    if args.resume:
+        start = mipnet.load(str(run / "start.safetensors"))
+    else:
+        write_pairs(adapted_on, args.out / "pairs")
+        start = mipnet.load(args.weights) if args.weights else mipnet.MIPNet.pretrained()
     before = measure(start.eval(), measured_on, iters)
     began = time.time()
-    adapt(str(args.out / "pairs" / "left" / "*.png"), str(args.out / "pairs" / "right" / "*.png"),
-          str(args.out / "adapt"), weights=args.weights, steps=args.steps, lr=args.lr, crop=tuple(args.crop))
+    if args.resume:
+        adapt(None, None, str(run), steps=args.steps, resume=True)
+    else:
+        adapt(str(args.out / "pairs" / "left" / "*.png"), str(args.out / "pairs" / "right" / "*.png"),
+              str(run), weights=args.weights, steps=args.steps, lr=args.lr, crop=tuple(args.crop))
     seconds = time.time() - began
     after = measure(mipnet.load(str(args.out / "adapt" / "model.safetensors")).eval(), measured_on, iters)
+    settings = json.loads((run / "config.json").read_text())
     result = {"domain": "photos, held-out photographs", "pairs": args.pairs, "size": [height, width],
-              "steps": args.steps, "lr": args.lr, "crop": list(args.crop), "iters": list(iters),
+              "steps": args.steps, "lr": settings["lr"], "crop": list(settings["crop"]), "iters": list(iters),
               "adapt_seconds": seconds, "before": summary(before), "after": summary(after),
               "gain_epe": 1.0 - summary(after)["epe"] / summary(before)["epe"],
               "per_pair": [{"before": b, "after": a} for b, a in zip(before, after)]}

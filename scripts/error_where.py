@@ -1,0 +1,117 @@
+"""Where a weights file's error lies on the real evaluation pairs: EPE, bad-1 and bias over the pixels with
+ground truth, split by occlusion, nearness to a depth edge, image texture and disparity, beside OpenCV's SGBM.
+
+    python scripts/error_where.py [--weights W] [--sets motorcycle cones] [--iters 6 6] [--precision fp32]
+
+An analysis for the closing notes of the real-photograph work, never a way to choose weights or settings (the
+real pairs are evaluation data only). The splits come from the ground truth and the left image alone:
+
+* occluded: the pixel's match lies behind a nearer surface in the right view (the left disparity map forward
+  warped to the right view keeps the largest disparity at each column; a pixel is occluded when that is more
+  than 1 px larger than its own);
+* edge: within 3 px of a jump of more than 2 px between neighbouring ground-truth disparities (not occluded);
+* texture: the standard deviation of the grey left image in a 7x7 window, in three bands (flat < 4, some
+  4-12, strong >= 12, on 0-255), over the pixels that are neither occluded nor at an edge;
+* disparity: the pair's ground-truth disparity in four bands of equal pixel count (quartiles).
+
+Each row: the share of the pair's valid pixels in the split, then EPE / bad-1 / mean signed error (prediction -
+truth) for mipnet and SGBM (64 disparities, block 5, holes counted as disparity 0, as `mipnet eval` does), and
+the share of all of mipnet's bad-1 pixels that fall in the split.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+from scipy import ndimage
+
+import mipnet
+from mipnet.data.real import RealPairs
+from mipnet.stereo.baselines import sgbm
+
+TEXTURE_BANDS = ((0.0, 4.0, "flat"), (4.0, 12.0, "some"), (12.0, np.inf, "strong"))
+
+
+def occluded(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Left pixels hidden in the right view by a nearer surface, from the left ground truth alone."""
+    height, width = disparity.shape
+    right_view = np.zeros((height, width), np.float32)
+    rows, cols = np.nonzero(valid)
+    # a left pixel (y, x) with disparity d lands on right column x - d
+    target = np.rint(cols - disparity[rows, cols]).astype(np.int64)
+    inside = (target >= 0) & (target < width)
+    np.maximum.at(right_view, (rows[inside], target[inside]), disparity[rows[inside], cols[inside]])
+    seen = np.zeros_like(valid)
+    seen[rows[inside], cols[inside]] = right_view[rows[inside], target[inside]] <= disparity[rows[inside], cols[inside]] + 1
+    return valid & ~seen
+
+
+def near_edge(disparity: np.ndarray, valid: np.ndarray, jump: float = 2.0, radius: int = 3) -> np.ndarray:
+    """Pixels within ``radius`` px of a jump of more than ``jump`` px between neighbouring valid truths."""
+    edge = np.zeros_like(valid)
+    # horizontal neighbours (y, x) and (y, x + 1), then vertical ones (y, x) and (y + 1, x)
+    h = valid[:, 1:] & valid[:, :-1] & (np.abs(disparity[:, 1:] - disparity[:, :-1]) > jump)
+    v = valid[1:, :] & valid[:-1, :] & (np.abs(disparity[1:, :] - disparity[:-1, :]) > jump)
+    edge[:, 1:] |= h
+    edge[:, :-1] |= h
+    edge[1:, :] |= v
+    edge[:-1, :] |= v
+    return ndimage.binary_dilation(edge, iterations=radius) & valid
+
+
+def local_std(left: np.ndarray, size: int = 7) -> np.ndarray:
+    """Standard deviation of the grey image in a ``size`` x ``size`` window (0-255)."""
+    grey = left.astype(np.float64).mean(axis=2)
+    mean = ndimage.uniform_filter(grey, size)
+    return np.sqrt(np.maximum(ndimage.uniform_filter(grey * grey, size) - mean * mean, 0.0))
+
+
+def scores(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
+    """EPE, bad-1 (%) and mean signed error over ``mask``."""
+    signed = pred[mask] - truth[mask]
+    return float(np.abs(signed).mean()), float((np.abs(signed) > 1).mean() * 100), float(signed.mean())
+
+
+def splits(pair: dict) -> list[tuple[str, np.ndarray]]:
+    truth, valid = pair["disparity"], pair["valid"]
+    occ = occluded(truth, valid)
+    edge = near_edge(truth, valid) & ~occ
+    rest = valid & ~occ & ~edge
+    texture = local_std(pair["left"])
+    rows = [("all", valid), ("occluded", occ), ("edge (visible)", edge), ("elsewhere", rest)]
+    rows += [(f"  texture {name} [{lo:g}, {hi:g})", rest & (texture >= lo) & (texture < hi))
+             for lo, hi, name in TEXTURE_BANDS]
+    edges = np.quantile(truth[valid], [0, 0.25, 0.5, 0.75, 1.0])
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        rows.append((f"disparity [{lo:.0f}, {hi:.0f}]", valid & (truth >= lo) & (truth <= hi)))
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--weights", default=None, help="weights file (default: the shipped ones)")
+    parser.add_argument("--sets", nargs="+", default=["motorcycle", "cones"])
+    parser.add_argument("--iters", type=int, nargs=2, default=(6, 6))
+    args = parser.parse_args()
+    model = (mipnet.load(args.weights) if args.weights else mipnet.MIPNet.pretrained()).eval()
+    for name in args.sets:
+        pair = RealPairs(name)[0]
+        pred = model(pair["left"], pair["right"], iters=tuple(args.iters))
+        classic = sgbm(pair["left"], pair["right"], num_disparities=64)[0]
+        truth, valid = pair["disparity"], pair["valid"]
+        bad = valid & (np.abs(pred - truth) > 1)
+        print(f"\n{name} {truth.shape[0]}x{truth.shape[1]}, {int(valid.sum())} pixels with ground truth, "
+              f"iterations {tuple(args.iters)}")
+        print(f"{'split':<30} {'share':>6}  {'mipnet EPE / bad-1 / bias':>27}  {'SGBM EPE / bad-1 / bias':>25}  "
+              f"{'of bad-1':>8}")
+        for label, mask in splits(pair):
+            if not mask.any():
+                continue
+            m, s = scores(pred, truth, mask), scores(classic, truth, mask)
+            print(f"{label:<30} {mask.sum() / valid.sum() * 100:5.1f}%  {m[0]:7.2f} {m[1]:8.1f}% {m[2]:+8.2f}  "
+                  f"{s[0]:7.2f} {s[1]:8.1f}% {s[2]:+7.2f}  {(bad & mask).sum() / bad.sum() * 100:7.1f}%")
+
+
+if __name__ == "__main__":
+    main()
