@@ -43,12 +43,16 @@ EVAL_HEAP_FACTOR, EVAL_MMAP_FACTOR = 1.8, 1.25
 #: conv1's ReLU output (256) and the mask (144).
 HEAD_CHANNELS = 400
 #: Training keeps a level's prediction heads while all of them take at most this; above it they are
-#: recomputed in the backward (which costs about 5% of a step at 128x256 batch 4).
-HEAD_KEEP_BYTES = 256 * MiB
+#: recomputed in the backward. At 384x512, batch 2, (6, 6) the heads take 472 MiB: keeping them made
+#: the step 3.5% faster (recompute forward 1.78 -> 0.46 s of op time, `python scripts/step_time.py
+#: --size 384 512 --batch 2 --iters 6 6 --profile`, AMD Zen 4) for 350 MiB more peak (4,346 -> 4,696 MiB;
+#: torch takes about 10,500).
+HEAD_KEEP_BYTES = 512 * MiB
 #: The most bytes an eval process keeps of Winograd-transformed kernels (``src/ops/conv/winograd/cache.rs``).
 KERNEL_CACHE_BYTES = 128 * MiB
-#: Fewest tiles of 4x4 pixels over the batch for a Winograd convolution (``src/ops/conv/winograd.rs``).
-WINOGRAD_MIN_TILES = 512
+#: Fewest tiles over the batch for a Winograd forward, by kernel shape (``Scheme::min_tiles`` in
+#: ``src/ops/conv/winograd.rs``): F(4x4, 3x3) tiles 4x4 pixels, F(4, 5) 4 pixels along the kernel.
+WINOGRAD_MIN_TILES = {(3, 3): 96, (1, 5): 128, (5, 1): 128}
 
 
 def recompute_heads(level_pixels: int, sub_updates: int, itemsize: int = 4) -> bool:
@@ -195,14 +199,19 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
             "backward": backward}
 
 
-def kept_kernel_bytes(model: Any) -> int:
-    """Bytes an eval process keeps for the float32 Winograd kernels of ``model`` (a MIPNet):
-    each 3x3, 1x5 or 5x1 kernel of 32 channels or more in and out, copied, and transformed into 36 (3x3) or
+def kept_kernel_bytes(model: Any, height: int, width: int, batch: int) -> int:
+    """Bytes an eval process keeps for the float32 Winograd kernels of ``model`` (a MIPNet) on ``batch``
+    images of ``height`` x ``width``: each 3x3, 1x5 or 5x1 kernel of 32 channels or more in and out whose
+    convolution at the 1/4 level has enough tiles for Winograd, copied, and transformed into 36 (3x3) or
     8 values per channel pair, its output channels padded to 8."""
+    # tiles at the 1/4 level (h4 x w4 = height/4 x width/4): 4x4 pixels for 3x3, 4 along the kernel for 1x5, 5x1
+    h4, w4 = height // 4, width // 4
+    tiles = {(3, 3): (h4 // 4) * (w4 // 4), (1, 5): h4 * (w4 // 4), (5, 1): (h4 // 4) * w4}
     total = 0
     for p in model.parameters():
         shape = p.data.shape
-        if len(shape) == 4 and min(shape[:2]) >= 32 and shape[2:] in ((3, 3), (1, 5), (5, 1)):
+        if (len(shape) == 4 and min(shape[:2]) >= 32 and shape[2:] in tiles
+                and tiles[shape[2:]] * batch >= WINOGRAD_MIN_TILES[shape[2:]]):
             cout, cin, kh, kw = shape
             xi = 36 if (kh, kw) == (3, 3) else 8
             total += 4 * (cout * cin * kh * kw + -(-cout // 8) * 8 * cin * xi)
@@ -228,9 +237,9 @@ def estimate(height: int, width: int, batch: int = 1, mode: str = "eval", iters:
     extra = activation_bytes(height, width, batch, mode, tuple(iters), config, itemsize)
     if mode == "train":
         extra += weights  # the gradient of every parameter
-    elif itemsize == 4 and (height // 16) * (width // 16) * batch >= WINOGRAD_MIN_TILES:
-        # the 1/4 level's convolutions take Winograd, and inference keeps their transformed kernels
-        extra += min(KERNEL_CACHE_BYTES, kept_kernel_bytes(model))
+    elif itemsize == 4:
+        # inference keeps the transformed kernels of the convolutions that take Winograd
+        extra += min(KERNEL_CACHE_BYTES, kept_kernel_bytes(model, height, width, batch))
     return MemoryEstimate(mode, height, width, batch, (int(iters[0]), int(iters[1])), int(extra),
                           BASE_PROCESS_BYTES + weights)
 

@@ -34,9 +34,6 @@ mod lanes;
 /// Fewest channels (in and out) for Winograd: below, its per-channel transforms outweigh the
 /// multiplies it saves.
 const MIN_CHANNELS: usize = 32;
-/// Fewest tiles over the batch: the weight transform (per channel pair, about as costly as the
-/// GEMM work of 100 tiles) must be amortised.
-const MIN_TILES: usize = 512;
 
 /// A Winograd algorithm and the convolutions it computes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,6 +71,27 @@ impl Scheme {
             Scheme::F4x4K3x3 => (g.ho.div_ceil(4), g.wo.div_ceil(4)),
             Scheme::F4K5(Along::X) => (g.ho, g.wo.div_ceil(4)),
             Scheme::F4K5(Along::Y) => (g.ho.div_ceil(4), g.wo),
+        }
+    }
+
+    /// Fewest tiles over the batch for Winograd to pay: in the forward (and the dX that is a forward)
+    /// the kernel transform, per channel pair about as costly as the GEMM work of 100 tiles, must be
+    /// amortised; the weight gradient transforms no kernel (its adjoint at the end is cheap), so F(4x4,
+    /// 3x3) pays there from fewer tiles. Measured with `WINOGRAD=off|on ./target/release/examples/conv_time
+    /// N CIN COUT H W KH KW 1 30` on AMD Zen 4, 2 threads, nothing else running, Winograd's speed-up
+    /// (fwd, dX, dW) on the 1/16 level's shapes:
+    /// - 3x3, 32 tiles (8x16, N=4): 128->128 0.53, 0.71, 1.54; 128->256 0.47, 0.70, 1.38; 352->256
+    ///   0.53, 0.68, 1.25;
+    /// - 3x3, 64 tiles (16x32, N=2): 128->256 0.96, 0.99, 1.68; 352->256 0.86, 1.17, 1.57;
+    /// - 3x3, 96 tiles (24x32, N=2): 128->128 0.93, 1.04, 1.37; 128->256 1.07, 1.06, 1.61; 352->256
+    ///   1.13, 1.42, 1.70;
+    /// - 1x5 / 5x1, 128 tiles (1x5 at 8x16, N=4): 1.18, 1.54, 1.13; 384 (1x5 at 24x32, N=2): 1.23,
+    ///   1.61, 1.32; 256 (5x1 at 16x32, N=2): 1.49, 1.59, 1.03.
+    fn min_tiles(self, weight_grad: bool) -> usize {
+        match (self, weight_grad) {
+            (Scheme::F4x4K3x3, false) => 96,
+            (Scheme::F4x4K3x3, true) => 32,
+            (Scheme::F4K5(_), _) => 128,
         }
     }
 
@@ -136,11 +154,17 @@ pub(super) fn applies(g: &Geom) -> bool {
     Scheme::of(g).is_some()
 }
 
-/// Whether it pays: enough channels and tiles for the transforms to cost less than they save.
+/// Whether the forward pays: enough channels and tiles for the transforms to cost less than they save.
 pub(super) fn pays(g: &Geom) -> bool {
+    enough_channels_and_tiles(g, false)
+}
+
+/// Whether Winograd applies to `g` with at least [`MIN_CHANNELS`] in and out and the scheme's
+/// [`Scheme::min_tiles`] over the batch.
+fn enough_channels_and_tiles(g: &Geom, weight_grad: bool) -> bool {
     let Some(scheme) = Scheme::of(g) else { return false };
     let (th, tw) = scheme.tiles(g);
-    g.cin.min(g.cout) >= MIN_CHANNELS && g.n * th * tw >= MIN_TILES
+    g.cin.min(g.cout) >= MIN_CHANNELS && g.n * th * tw >= scheme.min_tiles(weight_grad)
 }
 
 /// Least Cin·Cout / (Cin + Cout) for the Winograd weight gradient: per tile it transforms Cin + Cout
@@ -163,7 +187,7 @@ const MIN_DW_CHANNEL_RATIO: usize = 32;
 
 /// Whether the Winograd weight gradient pays (see [`MIN_DW_CHANNEL_RATIO`]).
 pub(super) fn weight_grad_pays(g: &Geom) -> bool {
-    pays(g) && g.cin * g.cout >= MIN_DW_CHANNEL_RATIO * (g.cin + g.cout)
+    enough_channels_and_tiles(g, true) && g.cin * g.cout >= MIN_DW_CHANNEL_RATIO * (g.cin + g.cout)
 }
 
 /// Channel pairs per task in the kernel transform ([`weights`]) and its adjoint ([`weight_grad`]):
