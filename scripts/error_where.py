@@ -1,7 +1,8 @@
 """Where a weights file's error lies on the real evaluation pairs: EPE, bad-1 and bias over the pixels with
 ground truth, split by occlusion, nearness to a depth edge, image texture and disparity, beside OpenCV's SGBM.
 
-    python scripts/error_where.py [--weights W] [--sets motorcycle cones] [--iters 6 6] [--precision fp32]
+    python scripts/error_where.py [--weights W] [--sets motorcycle cones] [--iters 6 6]
+    python scripts/error_where.py --sets synthetic photos --pairs 6 --size 384 512    # validation pairs, pooled
 
 An analysis for the closing notes of the real-photograph work, never a way to choose weights or settings (the
 real pairs are evaluation data only). The splits come from the ground truth and the left image alone:
@@ -15,8 +16,10 @@ real pairs are evaluation data only). The splits come from the ground truth and 
 * disparity: the pair's ground-truth disparity in four bands of equal pixel count (quartiles).
 
 Each row: the share of the pair's valid pixels in the split, then EPE / bad-1 / mean signed error (prediction -
-truth) for mipnet and SGBM (64 disparities, block 5, holes counted as disparity 0, as `mipnet eval` does), and
-the share of all of mipnet's bad-1 pixels that fall in the split.
+truth) / median absolute error for mipnet and SGBM (64 disparities, block 5, holes counted as disparity 0, as
+`mipnet eval` does; for generated sets the smallest multiple of 16 above their largest disparity), and the share of
+all of mipnet's bad-1 pixels that fall in the split. Generated sets (``synthetic``, ``photos``: the validation
+pairs from seed 2,000,000, as `scripts/validate_weights.py`) pool the pixels of ``--pairs`` pairs per split.
 """
 
 from __future__ import annotations
@@ -27,7 +30,9 @@ import numpy as np
 from scipy import ndimage
 
 import mipnet
-from mipnet.data.real import RealPairs
+from mipnet.data import PhotoStereo, SyntheticStereo
+from mipnet.data.real import REAL_SETS, RealPairs
+from mipnet.data.synthetic import VALIDATION_SEED_START
 from mipnet.stereo.baselines import sgbm
 
 TEXTURE_BANDS = ((0.0, 4.0, "flat"), (4.0, 12.0, "some"), (12.0, np.inf, "strong"))
@@ -67,10 +72,10 @@ def local_std(left: np.ndarray, size: int = 7) -> np.ndarray:
     return np.sqrt(np.maximum(ndimage.uniform_filter(grey * grey, size) - mean * mean, 0.0))
 
 
-def scores(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
-    """EPE, bad-1 (%) and mean signed error over ``mask``."""
-    signed = pred[mask] - truth[mask]
-    return float(np.abs(signed).mean()), float((np.abs(signed) > 1).mean() * 100), float(signed.mean())
+def scores(signed: np.ndarray) -> tuple[float, float, float, float]:
+    """EPE, bad-1 (%), mean signed error and median absolute error of the signed errors ``signed``."""
+    error = np.abs(signed)
+    return float(error.mean()), float((error > 1).mean() * 100), float(signed.mean()), float(np.median(error))
 
 
 def splits(pair: dict) -> list[tuple[str, np.ndarray]]:
@@ -82,35 +87,57 @@ def splits(pair: dict) -> list[tuple[str, np.ndarray]]:
     rows = [("all", valid), ("occluded", occ), ("edge (visible)", edge), ("elsewhere", rest)]
     rows += [(f"  texture {name} [{lo:g}, {hi:g})", rest & (texture >= lo) & (texture < hi))
              for lo, hi, name in TEXTURE_BANDS]
+    # disparity quartiles of this pair (pooled over pairs, the bands are each pair's own)
     edges = np.quantile(truth[valid], [0, 0.25, 0.5, 0.75, 1.0])
-    for lo, hi in zip(edges[:-1], edges[1:]):
-        rows.append((f"disparity [{lo:.0f}, {hi:.0f}]", valid & (truth >= lo) & (truth <= hi)))
+    for q, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
+        rows.append((f"disparity quartile {q + 1}", valid & (truth >= lo) & (truth <= hi)))
     return rows
+
+
+def pairs_of(name: str, count: int, size: tuple[int, int]) -> list[dict]:
+    """The real pair ``name``, or ``count`` validation pairs of the generated set ``name`` at ``size``."""
+    if name in REAL_SETS:
+        return [RealPairs(name)[0]]
+    maker = {"synthetic": SyntheticStereo, "photos": PhotoStereo}[name]
+    return list(maker(count, *size, seed=VALIDATION_SEED_START))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--weights", default=None, help="weights file (default: the shipped ones)")
-    parser.add_argument("--sets", nargs="+", default=["motorcycle", "cones"])
+    parser.add_argument("--sets", nargs="+", default=["motorcycle", "cones"],
+                        choices=[*REAL_SETS, "synthetic", "photos"])
+    parser.add_argument("--pairs", type=int, default=6, help="pairs of a generated set")
+    parser.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"),
+                        help="size of a generated set's pairs")
     parser.add_argument("--iters", type=int, nargs=2, default=(6, 6))
     args = parser.parse_args()
     model = (mipnet.load(args.weights) if args.weights else mipnet.MIPNet.pretrained()).eval()
     for name in args.sets:
-        pair = RealPairs(name)[0]
-        pred = model(pair["left"], pair["right"], iters=tuple(args.iters))
-        classic = sgbm(pair["left"], pair["right"], num_disparities=64)[0]
-        truth, valid = pair["disparity"], pair["valid"]
-        bad = valid & (np.abs(pred - truth) > 1)
-        print(f"\n{name} {truth.shape[0]}x{truth.shape[1]}, {int(valid.sum())} pixels with ground truth, "
-              f"iterations {tuple(args.iters)}")
-        print(f"{'split':<30} {'share':>6}  {'mipnet EPE / bad-1 / bias':>27}  {'SGBM EPE / bad-1 / bias':>25}  "
-              f"{'of bad-1':>8}")
-        for label, mask in splits(pair):
-            if not mask.any():
+        pooled: dict[str, list] = {}
+        valid_pixels = 0
+        for pair in pairs_of(name, args.pairs, tuple(args.size)):
+            truth, valid = pair["disparity"], pair["valid"]
+            span = 64 if name in REAL_SETS else 16 * (int(truth[valid].max()) // 16 + 1)
+            pred = model(pair["left"], pair["right"], iters=tuple(args.iters))
+            classic = sgbm(pair["left"], pair["right"], num_disparities=span)[0]
+            valid_pixels += int(valid.sum())
+            for label, mask in splits(pair):
+                rows = pooled.setdefault(label, [[], []])
+                rows[0].append(pred[mask] - truth[mask])
+                rows[1].append(classic[mask] - truth[mask])
+        bad = sum(int((np.abs(e) > 1).sum()) for e in pooled["all"][0])
+        what = "1 pair" if name in REAL_SETS else f"{args.pairs} validation pairs at {args.size[0]}x{args.size[1]}"
+        print(f"\n{name}: {what}, {valid_pixels} pixels with ground truth, iterations {tuple(args.iters)}")
+        print(f"{'split':<30} {'share':>6}  {'mipnet EPE / bad-1 / bias / median':>37}  "
+              f"{'SGBM EPE / bad-1 / bias / median':>35}  {'of bad-1':>8}")
+        for label, (mine, theirs) in pooled.items():
+            mine, theirs = np.concatenate(mine), np.concatenate(theirs)
+            if mine.size == 0:
                 continue
-            m, s = scores(pred, truth, mask), scores(classic, truth, mask)
-            print(f"{label:<30} {mask.sum() / valid.sum() * 100:5.1f}%  {m[0]:7.2f} {m[1]:8.1f}% {m[2]:+8.2f}  "
-                  f"{s[0]:7.2f} {s[1]:8.1f}% {s[2]:+7.2f}  {(bad & mask).sum() / bad.sum() * 100:7.1f}%")
+            m, s = scores(mine), scores(theirs)
+            print(f"{label:<30} {mine.size / valid_pixels * 100:5.1f}%  {m[0]:7.2f} {m[1]:8.1f}% {m[2]:+8.2f} {m[3]:8.2f}  "
+                  f"{s[0]:7.2f} {s[1]:8.1f}% {s[2]:+7.2f} {s[3]:8.2f}  {(np.abs(mine) > 1).sum() / bad * 100:7.1f}%")
 
 
 if __name__ == "__main__":
