@@ -1,6 +1,6 @@
 """Times consecutive eval forwards of one fresh process: seconds, page faults, CPU time and peak RSS per run.
 
-    python scripts/eval_time.py [--size 384 512] [--runs 7]
+    python scripts/eval_time.py [--size 384 512] [--runs 7] [--precision fp32|bf16]
 
 The same forward as `python -m mipnet.bench model --sizes HxW` (random weights, an image and its copy shifted by 4
 pixels, 6+6 iterations) for comparing two builds of the engine in one window of this VM, alternating runs: put the
@@ -25,6 +25,8 @@ def main() -> None:
     ap.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"))
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--precision", choices=("fp32", "bf16"), default="fp32",
+                    help="bf16: the forwards run under mipnet.autocast(dtype='bfloat16')")
     a = ap.parse_args()
     (h, w) = a.size
     mipnet.set_num_threads(a.threads)
@@ -35,10 +37,11 @@ def main() -> None:
     right = np.roll(left, -4, axis=1)
     model = mipnet.MIPNet()
     model.eval()
-    print(f"mipnet from {mipnet.__file__}; eval {h}x{w}, {a.threads} threads")
+    print(f"mipnet from {mipnet.__file__}; eval {h}x{w}, {a.precision}, {a.threads} threads")
     for run in range(a.runs):
         r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        model(left, right)
+        with mipnet.autocast(dtype="bfloat16", enabled=a.precision == "bf16"):
+            model(left, right)
         seconds, r1 = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF)
         print(f"run {run}: {seconds:.3f} s  faults {r1.ru_minflt - r0.ru_minflt}  user {r1.ru_utime - r0.ru_utime:.2f} s"
               f"  sys {r1.ru_stime - r0.ru_stime:.2f} s  peak {r1.ru_maxrss >> 10} MiB", flush=True)
