@@ -43,10 +43,10 @@ EVAL_HEAP_FACTOR, EVAL_MMAP_FACTOR = 1.8, 1.25
 #: conv1's ReLU output (256) and the mask (144).
 HEAD_CHANNELS = 400
 #: Training keeps a level's prediction heads while all of them take at most this; above it they are
-#: recomputed in the backward. At 384x512, batch 2, (6, 6) the heads take 472 MiB: keeping them made
-#: the step 3.5% faster (recompute forward 1.78 -> 0.46 s of op time, `python scripts/step_time.py
-#: --size 384 512 --batch 2 --iters 6 6 --profile`, AMD Zen 4) for 350 MiB more peak (4,346 -> 4,696 MiB;
-#: torch takes about 10,500).
+#: recomputed in the backward. At 384x512, batch 2, (6, 6) the heads take 472 MiB: keeping them cut the
+#: recomputation from 1.19 to 0.25 s of op time (`python scripts/step_time.py --size 384 512 --batch 2
+#: --iters 6 6 --profile`, AMD Zen 4, about 5% of the step) for about 320 MiB more peak (4,366 -> 4,676
+#: MiB; torch takes about 10,500).
 HEAD_KEEP_BYTES = 512 * MiB
 #: The most bytes an eval process keeps of Winograd-transformed kernels (``src/ops/conv/winograd/cache.rs``).
 KERNEL_CACHE_BYTES = 128 * MiB
