@@ -41,8 +41,12 @@ TRAIN = ["--preset", "cpu", "--crop", "64", "96", "--batch-size", "2", "--iters"
          "--workers", "0", "--checkpoint-every", "100", "--data", "scenes:0.5", "synthetic-underwater:0.5",
          "--freeze-bn", "--quiet"]
 ON_RAY = ["--ray", "--workers", "2"]
-#: one process vs 2 workers: the loss within this relative error (measured 5e-8) ...
+#: one process vs 2 workers: the loss of a step from the same weights within this relative error (measured
+#: 3e-8) ...
 LOSS_RTOL = 1e-6
+#: ... the losses of steps 2 and 3, which follow the weights after AdamW updates (see WEIGHTS_RTOL), within this
+#: (measured 1e-8 to 1.5e-6, depending on which near-zero gradient entries the rounding flips) ...
+LATER_LOSS_RTOL = 1e-5
 #: ... a step's summed gradient within this share of its largest entry (measured 9e-8) ...
 GRAD_TOL = 1e-6
 #: ... and the weights after 3 AdamW steps within this relative L2 distance over the model (measured 1.2e-5), not
@@ -190,7 +194,8 @@ def test_train_on_ray_gives_the_losses_and_weights_of_one_process(runs):
     one, two = runs
     a, b = _losses(one), _losses(two)
     assert len(a) == len(b) == 3
-    np.testing.assert_allclose(b, a, rtol=LOSS_RTOL)
+    assert b[0] == pytest.approx(a[0], rel=LOSS_RTOL)
+    np.testing.assert_allclose(b[1:], a[1:], rtol=LATER_LOSS_RTOL)
     wa, wb = _weights(one), _weights(two)
     assert list(wa) == list(wb)
     flat_a, flat_b = (np.concatenate([w[key].ravel() for key in wa]) for w in (wa, wb))

@@ -50,9 +50,9 @@ HEAD_CHANNELS = 400
 HEAD_KEEP_BYTES = 512 * MiB
 #: The most bytes an eval process keeps of Winograd-transformed kernels (``src/ops/conv/winograd/cache.rs``).
 KERNEL_CACHE_BYTES = 128 * MiB
-#: Fewest tiles over the batch for a Winograd forward, by kernel shape (``Scheme::min_tiles`` in
+#: Fewest tiles per image for a Winograd forward, by kernel shape (``Scheme::min_tiles`` in
 #: ``src/ops/conv/winograd.rs``): F(4x4, 3x3) tiles 4x4 pixels, F(4, 5) 4 pixels along the kernel.
-WINOGRAD_MIN_TILES = {(3, 3): 96, (1, 5): 128, (5, 1): 128}
+WINOGRAD_MIN_TILES = {(3, 3): 48, (1, 5): 32, (5, 1): 32}
 
 
 def recompute_heads(level_pixels: int, sub_updates: int, itemsize: int = 4) -> bool:
@@ -199,9 +199,9 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
             "backward": backward}
 
 
-def kept_kernel_bytes(model: Any, height: int, width: int, batch: int) -> int:
-    """Bytes an eval process keeps for the float32 Winograd kernels of ``model`` (a MIPNet) on ``batch``
-    images of ``height`` x ``width``: each 3x3, 1x5 or 5x1 kernel of 32 channels or more in and out whose
+def kept_kernel_bytes(model: Any, height: int, width: int) -> int:
+    """Bytes an eval process keeps for the float32 Winograd kernels of ``model`` (a MIPNet) on images of
+    ``height`` x ``width``: each 3x3, 1x5 or 5x1 kernel of 32 channels or more in and out whose
     convolution at the 1/4 level has enough tiles for Winograd, copied, and transformed into 36 (3x3) or
     8 values per channel pair, its output channels padded to 8."""
     # tiles at the 1/4 level (h4 x w4 = height/4 x width/4): 4x4 pixels for 3x3, 4 along the kernel for 1x5, 5x1
@@ -211,7 +211,7 @@ def kept_kernel_bytes(model: Any, height: int, width: int, batch: int) -> int:
     for p in model.parameters():
         shape = p.data.shape
         if (len(shape) == 4 and min(shape[:2]) >= 32 and shape[2:] in tiles
-                and tiles[shape[2:]] * batch >= WINOGRAD_MIN_TILES[shape[2:]]):
+                and tiles[shape[2:]] >= WINOGRAD_MIN_TILES[shape[2:]]):
             cout, cin, kh, kw = shape
             xi = 36 if (kh, kw) == (3, 3) else 8
             total += 4 * (cout * cin * kh * kw + -(-cout // 8) * 8 * cin * xi)
@@ -239,7 +239,7 @@ def estimate(height: int, width: int, batch: int = 1, mode: str = "eval", iters:
         extra += weights  # the gradient of every parameter
     elif itemsize == 4:
         # inference keeps the transformed kernels of the convolutions that take Winograd
-        extra += min(KERNEL_CACHE_BYTES, kept_kernel_bytes(model, height, width, batch))
+        extra += min(KERNEL_CACHE_BYTES, kept_kernel_bytes(model, height, width))
     return MemoryEstimate(mode, height, width, batch, (int(iters[0]), int(iters[1])), int(extra),
                           BASE_PROCESS_BYTES + weights)
 

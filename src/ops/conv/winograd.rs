@@ -74,24 +74,26 @@ impl Scheme {
         }
     }
 
-    /// Fewest tiles over the batch for Winograd to pay: in the forward (and the dX that is a forward)
-    /// the kernel transform, per channel pair about as costly as the GEMM work of 100 tiles, must be
-    /// amortised; the weight gradient transforms no kernel (its adjoint at the end is cheap), so F(4x4,
-    /// 3x3) pays there from fewer tiles. Measured with `WINOGRAD=off|on ./target/release/examples/conv_time
-    /// N CIN COUT H W KH KW 1 30` on AMD Zen 4, 2 threads, nothing else running, Winograd's speed-up
-    /// (fwd, dX, dW) on the 1/16 level's shapes:
-    /// - 3x3, 32 tiles (8x16, N=4): 128->128 0.53, 0.71, 1.54; 128->256 0.47, 0.70, 1.38; 352->256
+    /// Fewest tiles per image for Winograd to pay. Counted per image, not over the batch, so that
+    /// the choice does not depend on how a batch is split: data-parallel workers with part of a
+    /// batch compute what one process computes (`tests_py/test_distributed.py`). In the forward (and
+    /// the dX that is a forward) the kernel transform, per channel pair about as costly as the GEMM
+    /// work of 100 tiles, must be amortised; the weight gradient transforms no kernel (its adjoint at
+    /// the end is cheap), so F(4x4, 3x3) pays there from fewer tiles. Measured with `WINOGRAD=off|on
+    /// ./target/release/examples/conv_time N CIN COUT H W KH KW 1 30` on AMD Zen 4, 2 threads, nothing
+    /// else running, Winograd's speed-up (fwd, dX, dW) on the 1/16 level's shapes, tiles per image:
+    /// - 3x3, 8 tiles (8x16, N=4): 128->128 0.53, 0.71, 1.54; 128->256 0.47, 0.70, 1.38; 352->256
     ///   0.53, 0.68, 1.25;
-    /// - 3x3, 64 tiles (16x32, N=2): 128->256 0.96, 0.99, 1.68; 352->256 0.86, 1.17, 1.57;
-    /// - 3x3, 96 tiles (24x32, N=2): 128->128 0.93, 1.04, 1.37; 128->256 1.07, 1.06, 1.61; 352->256
+    /// - 3x3, 32 tiles (16x32, N=2): 128->256 0.96, 0.99, 1.68; 352->256 0.86, 1.17, 1.57;
+    /// - 3x3, 48 tiles (24x32, N=2): 128->128 0.93, 1.04, 1.37; 128->256 1.07, 1.06, 1.61; 352->256
     ///   1.13, 1.42, 1.70;
-    /// - 1x5 / 5x1, 128 tiles (1x5 at 8x16, N=4): 1.18, 1.54, 1.13; 384 (1x5 at 24x32, N=2): 1.23,
-    ///   1.61, 1.32; 256 (5x1 at 16x32, N=2): 1.49, 1.59, 1.03.
+    /// - 1x5 / 5x1, 32 tiles (1x5 at 8x16, N=4): 1.18, 1.54, 1.13; 192 (1x5 at 24x32, N=2): 1.23,
+    ///   1.61, 1.32; 128 (5x1 at 16x32, N=2): 1.49, 1.59, 1.03.
     fn min_tiles(self, weight_grad: bool) -> usize {
         match (self, weight_grad) {
-            (Scheme::F4x4K3x3, false) => 96,
-            (Scheme::F4x4K3x3, true) => 32,
-            (Scheme::F4K5(_), _) => 128,
+            (Scheme::F4x4K3x3, false) => 48,
+            (Scheme::F4x4K3x3, true) => 8,
+            (Scheme::F4K5(_), _) => 32,
         }
     }
 
@@ -160,11 +162,11 @@ pub(super) fn pays(g: &Geom) -> bool {
 }
 
 /// Whether Winograd applies to `g` with at least [`MIN_CHANNELS`] in and out and the scheme's
-/// [`Scheme::min_tiles`] over the batch.
+/// [`Scheme::min_tiles`] per image.
 fn enough_channels_and_tiles(g: &Geom, weight_grad: bool) -> bool {
     let Some(scheme) = Scheme::of(g) else { return false };
     let (th, tw) = scheme.tiles(g);
-    g.cin.min(g.cout) >= MIN_CHANNELS && g.n * th * tw >= scheme.min_tiles(weight_grad)
+    g.cin.min(g.cout) >= MIN_CHANNELS && th * tw >= scheme.min_tiles(weight_grad)
 }
 
 /// Least Cin·Cout / (Cin + Cout) for the Winograd weight gradient: per tile it transforms Cin + Cout
