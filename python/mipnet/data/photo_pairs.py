@@ -11,11 +11,15 @@ A pair is made in four steps, all a deterministic function of (height, width, se
 2. **A depth layout that follows the photograph's own edges.** Felzenszwalb's graph segmentation splits
    the image along its edges; adjacent segments of similar colour are merged into surfaces (a random
    threshold sets how coarse), and a surface with almost no texture (a blank wall, sky) joins the textured
-   surface it shares the longest border with, so its disparity is one that texture reveals. Every surface gets a disparity field, a plane or a gently curved
-   surface ``d = c + gx u + gy v + q (u^2 + v^2)`` about its centroid with ``|dd/dx| <= 0.4``; often a
-   scene prior places large surfaces touching the top border far away and those touching the bottom on a
-   ground plane (disparity growing downwards). Discontinuities of disparity therefore lie on edges of the
-   photograph, as they do in real scenes, and occlusion order follows disparity.
+   surface it shares the longest border with, so its disparity is one that texture reveals.
+   Every surface gets a disparity field, a plane or a gently curved surface ``d = c + gx u + gy v + q (u^2 +
+   v^2)`` about its centroid, slanted as a plane seen by a camera of focal length ``f = max(H, W)`` px at up
+   to 63 degrees (``|gx|, |gy| <= 2 c / f``), keeping at least a quarter of ``c`` over the surface, with
+   ``|dd/dx| <= 0.4``; often a scene prior places large surfaces touching the top border far away and those
+   touching the bottom on a ground plane (disparity growing downwards from a horizon). The whole layout is
+   then scaled so that its largest disparity is ``max_disparity`` at most (scaled, not clipped: no
+   plateaus). Discontinuities of disparity therefore lie on edges of the photograph, as they do in real
+   scenes, and occlusion order follows disparity.
 3. **Both views rendered from the photograph.** The photograph is a surface texture in photo coordinates
    ``u``. The left view samples it at ``u = x + s`` for one random sub-pixel offset ``s`` per pair (so
    both views carry the blur of linear interpolation), its ground truth the surface's disparity there.
@@ -28,7 +32,9 @@ A pair is made in four steps, all a deterministic function of (height, width, se
    noise (:func:`mipnet.data.scenes.apply_camera`); water and the training augmentations come after, as
    for every generated pair.
 
-``valid`` is False where the left pixel is hidden in the right view or falls outside it.
+``valid`` is False where the left pixel is hidden in the right view or falls outside it, and where it lies
+more than :data:`_REVEAL_RADIUS` px from every textured pixel of the left view: inside a blank area the layout
+is a guess that no view reveals (a white backdrop, a black sea), and a loss there would teach the guess.
 """
 
 from __future__ import annotations
@@ -42,10 +48,13 @@ from .synthetic import EVAL_SEED_START, GeneratedStereo, check_seed, check_size
 
 __all__ = ["make_photo_pair", "PhotoStereo", "PHOTO_GENERATOR_VERSION"]
 
-PHOTO_GENERATOR_VERSION = "photo-pairs-2"
+PHOTO_GENERATOR_VERSION = "photo-pairs-3"
 _MAX_X_SLOPE = 0.4  # |dd/dx| bound of a surface: u -> u - d(u) stays increasing, stretch within [0.6, 1.4]
 _MIXED_STEP = 1.0  # a disparity step of at most this many px between neighbouring surfaces renders as mixed pixels
 _D_FLOOR = 0.25  # smallest disparity (px)
+_MAX_TAN = 2.0  # steepest slant of a surface, tan 63 degrees: |dd/du| <= _MAX_TAN d / f, f the focal length (px)
+_KEPT_SHARE = 0.25  # a slanted surface keeps at least this share of its centroid's disparity over its pixels
+_REVEAL_RADIUS = 8.0  # a left pixel farther than this (px) from every textured pixel has no ground truth
 _TEXTURE_STEP = 4.0 / 255.0  # a luminance step to a neighbour above this is texture (8-bit levels above JPEG noise)
 _TEXTURED_SHARE = 0.1  # a group with fewer textured pixels than this is textureless
 _STREAM = 0x5EED_F070  # the pair's random stream: default_rng([seed, _STREAM])
@@ -104,6 +113,16 @@ def _textured_pixels(image: np.ndarray) -> np.ndarray:
     return step > _TEXTURE_STEP
 
 
+def _revealed(image: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels within _REVEAL_RADIUS px of a textured pixel (none where nothing is textured)."""
+    from scipy import ndimage
+
+    textured = _textured_pixels(image)
+    if not textured.any():
+        return textured
+    return ndimage.distance_transform_edt(~textured) <= _REVEAL_RADIUS
+
+
 def _merge_textureless(image: np.ndarray, labels: np.ndarray, group: np.ndarray) -> np.ndarray:
     """``group`` with every textureless group (fewer than _TEXTURED_SHARE of its pixels textured) joined to the
     textured group it shares the longest border with, so that its disparity continues a surface whose texture
@@ -143,18 +162,19 @@ class _Layout:
     steps lie on the group boundaries and around the segments drawn as objects in front of their group."""
 
     def __init__(self, labels: np.ndarray, group: np.ndarray, rng: np.random.Generator, d_max: float):
-        height, width = labels.shape
         self.d_max = d_max
+        focal = float(max(labels.shape))
         count, groups = len(group), int(group.max()) + 1
         grouped = group[labels]
         g_pixels, g_cx, g_cy = _centroids(grouped, groups)
         d_far = d_max * rng.uniform(0.005, 0.15)
         c = _base_disparities(grouped, g_pixels, rng, max(d_far, _D_FLOOR), d_max)
-        gx = rng.uniform(-1.0, 1.0, groups) * rng.uniform(0.0, 0.25)
-        gy = rng.uniform(-1.0, 1.0, groups) * rng.uniform(0.0, 0.3)
-        q = np.where(rng.random(groups) < 0.3, rng.normal(0.0, 1.6e-3, groups) * d_max / max(height, width), 0.0)
+        gx, gy = c * _slants(rng, groups) / focal, c * _slants(rng, groups) / focal
+        q = np.where(rng.random(groups) < 0.3, rng.normal(0.0, 1.6e-3, groups) * d_max / focal, 0.0)
+        ground = np.zeros(groups, bool)
         if rng.random() < 0.6:
-            self._scene_prior(grouped, g_pixels, g_cy, (c, gx, gy, q), rng, d_far, d_max)
+            ground = self._scene_prior(grouped, g_pixels, g_cy, (c, gx, gy, q), rng, d_far, d_max)
+        gx, gy, q = _keep_positive(grouped, g_cx, g_cy, c, (gx, gy, q), exempt=ground)
         gx, q = _bound_slope(grouped, g_cx, gx, q)
         # every segment starts as a copy of its group's field
         self.cx, self.cy = g_cx[group], g_cy[group]
@@ -163,18 +183,23 @@ class _Layout:
         pixels, s_cx, s_cy = _centroids(labels, count)
         moderate = (pixels > 2e-3 * labels.size) & (pixels < 0.08 * labels.size)
         objects = moderate & (rng.random(count) < rng.uniform(0.0, 0.1))
-        behind = self(np.arange(count), s_cx, s_cy)
+        own_c = self.field(np.arange(count), s_cx, s_cy) * np.exp(rng.uniform(0.1, 0.8, count)) + 1.0
+        own_gx, own_gy, own_q = _keep_positive(labels, s_cx, s_cy, own_c, (
+            own_c * _slants(rng, count) / focal, own_c * _slants(rng, count) / focal, np.zeros(count)))
+        own_gx, own_q = _bound_slope(labels, s_cx, own_gx, own_q)
         self.cx, self.cy = np.where(objects, s_cx, self.cx), np.where(objects, s_cy, self.cy)
-        self.c = np.where(objects, np.minimum(behind * np.exp(rng.uniform(0.1, 0.8, count)) + 1.0, d_max), self.c)
-        own_gx, own_q = _bound_slope(labels, s_cx, rng.uniform(-0.2, 0.2, count), np.zeros(count))
-        self.gx = np.where(objects, own_gx, self.gx)
-        self.gy = np.where(objects, rng.uniform(-0.2, 0.2, count), self.gy)
-        self.q = np.where(objects, own_q, self.q)
+        self.c, self.gx = np.where(objects, own_c, self.c), np.where(objects, own_gx, self.gx)
+        self.gy, self.q = np.where(objects, own_gy, self.gy), np.where(objects, own_q, self.q)
+        # scale the whole layout (a shorter baseline) so that its largest disparity over the photograph is d_max
+        v, u = np.indices(labels.shape)
+        scale = min(1.0, d_max / float(self.field(labels, u, v).max()))
+        self.c, self.gx, self.gy, self.q = self.c * scale, self.gx * scale, self.gy * scale, self.q * scale
 
     @staticmethod
-    def _scene_prior(grouped, pixels, cy, fields, rng, d_far: float, d_max: float) -> None:
+    def _scene_prior(grouped, pixels, cy, fields, rng, d_far: float, d_max: float) -> np.ndarray:
         """Large groups touching the top border far away (sky, far walls), those touching the bottom border on
-        one ground plane whose disparity grows linearly downwards from a horizon (in place)."""
+        one ground plane whose disparity grows linearly downwards from a horizon (in place). Returns the
+        ground groups."""
         c, gx, gy, q = fields
         height = grouped.shape[0]
         large = pixels > 0.03 * grouped.size
@@ -193,11 +218,15 @@ class _Layout:
         c[ground] = np.maximum(slope * (cy[ground] - horizon), d_far)
         gx[ground] *= 0.2
         q[ground] = 0.0
+        return ground
+
+    def field(self, k: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The disparity of segment ``k`` at photo point ``(u, v)``, before the range's clip."""
+        du, dv = u - self.cx[k], v - self.cy[k]
+        return self.c[k] + self.gx[k] * du + self.gy[k] * dv + self.q[k] * (du * du + dv * dv)
 
     def __call__(self, k: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        du, dv = u - self.cx[k], v - self.cy[k]
-        d = self.c[k] + self.gx[k] * du + self.gy[k] * dv + self.q[k] * (du * du + dv * dv)
-        return np.clip(d, _D_FLOOR, self.d_max)
+        return np.clip(self.field(k, u, v), _D_FLOOR, self.d_max)
 
 
 def _base_disparities(grouped: np.ndarray, pixels: np.ndarray, rng: np.random.Generator, d_low: float,
@@ -230,11 +259,39 @@ def _base_disparities(grouped: np.ndarray, pixels: np.ndarray, rng: np.random.Ge
     return np.exp(log_d)
 
 
+def _slants(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Random tangents of a surface's slant, in [-_MAX_TAN, _MAX_TAN], small ones more often."""
+    return rng.uniform(-1.0, 1.0, count) * rng.uniform(0.0, _MAX_TAN, count)
+
+
+def _reach(labels: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The largest |u - cx| and |v - cy| over each label's pixels."""
+    v, u = np.indices(labels.shape)
+    flat = labels.ravel()
+    reach_x, reach_y = np.zeros(len(cx)), np.zeros(len(cx))
+    np.maximum.at(reach_x, flat, np.abs(u.ravel() - cx[flat]))
+    np.maximum.at(reach_y, flat, np.abs(v.ravel() - cy[flat]))
+    return reach_x, reach_y
+
+
+def _keep_positive(labels: np.ndarray, cx: np.ndarray, cy: np.ndarray, c: np.ndarray, slopes: tuple,
+                   exempt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(gx, gy, q)`` scaled so that each label's field stays above _KEPT_SHARE of its ``c`` over its pixels
+    (a slanted plane that reaches zero disparity would run to the horizon and be clipped flat there); the
+    ``exempt`` labels (the ground plane, which does reach its horizon) are left as they are."""
+    gx, gy, q = slopes
+    reach_x, reach_y = _reach(labels, cx, cy)
+    # the field's lowest value over the label: c - |gx| reach_x - |gy| reach_y - |q| (reach_x^2 + reach_y^2)
+    drop = np.abs(gx) * reach_x + np.abs(gy) * reach_y + np.abs(q) * (reach_x ** 2 + reach_y ** 2)
+    scale = np.minimum(1.0, (1.0 - _KEPT_SHARE) * c / np.maximum(drop, 1e-12))
+    if exempt is not None:
+        scale = np.where(exempt, 1.0, scale)
+    return gx * scale, gy * scale, q * scale
+
+
 def _bound_slope(labels: np.ndarray, cx: np.ndarray, gx: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``gx`` and ``q`` scaled so that |dd/dx| = |gx + 2 q (u - cx)| <= _MAX_X_SLOPE over each label's pixels."""
-    u = np.indices(labels.shape)[1].ravel()
-    reach = np.zeros(len(cx))
-    np.maximum.at(reach, labels.ravel(), np.abs(u - cx[labels.ravel()]))
+    reach = _reach(labels, cx, np.zeros_like(cx))[0]
     scale = np.minimum(1.0, _MAX_X_SLOPE / np.maximum(np.abs(gx) + 2 * np.abs(q) * reach, 1e-12))
     return gx * scale, q * scale
 
@@ -359,7 +416,7 @@ def make_photo_pair(height: int, width: int, seed: int, *, max_disparity: float 
     x_right = cols - disparity
     inside = (x_right >= 0) & (x_right <= width - 1)
     nearest = np.clip(np.rint(x_right), 0, width - 1).astype(np.int64)
-    valid = inside & (zbuffer[rows, nearest] <= disparity + 0.5)
+    valid = inside & (zbuffer[rows, nearest] <= disparity + 0.5) & _revealed(left)
     if clean:
         left8, right8 = (np.rint(np.clip(v, 0, 1) * 255).astype(np.uint8) for v in (left, right))
     else:
