@@ -1,8 +1,9 @@
 """Where a weights file's error lies on the real evaluation pairs: EPE, bad-1 and bias over the pixels with
-ground truth, split by occlusion, nearness to a depth edge, image texture and disparity, beside OpenCV's SGBM.
+ground truth, split by occlusion, nearness to a depth edge, image texture, disparity and distance to a depth
+jump, beside OpenCV's SGBM.
 
     python scripts/error_where.py [--weights W] [--sets motorcycle cones] [--iters 6 6]
-    python scripts/error_where.py --sets synthetic photos --pairs 6 --size 384 512    # validation pairs, pooled
+    python scripts/error_where.py --sets synthetic scenes photos --pairs 6 --size 384 512    # validation pairs, pooled
 
 An analysis for the closing notes of the real-photograph work, never a way to choose weights or settings (the
 real pairs are evaluation data only). The splits come from the ground truth and the left image alone:
@@ -13,13 +14,17 @@ real pairs are evaluation data only). The splits come from the ground truth and 
 * edge: within 3 px of a jump of more than 2 px between neighbouring ground-truth disparities (not occluded);
 * texture: the standard deviation of the grey left image in a 7x7 window, in three bands (flat < 4, some
   4-12, strong >= 12, on 0-255), over the pixels that are neither occluded nor at an edge;
-* disparity: the pair's ground-truth disparity in four bands of equal pixel count (quartiles).
+* disparity: the pair's ground-truth disparity in four bands of equal pixel count (quartiles);
+* distance to a jump: the distance (px) from a visible pixel to the nearest jump of more than 2 px between
+  neighbouring ground-truth disparities, in bands (a matcher that bleeds disparity across depth edges loses
+  precision over tens of pixels from them, not only beside them).
 
 Each row: the share of the pair's valid pixels in the split, then EPE / bad-1 / mean signed error (prediction -
 truth) / median absolute error for mipnet and SGBM (64 disparities, block 5, holes counted as disparity 0, as
 `mipnet eval` does; for generated sets the smallest multiple of 16 above their largest disparity), and the share of
-all of mipnet's bad-1 pixels that fall in the split. Generated sets (``synthetic``, ``photos``: the validation
-pairs from seed 2,000,000, as `scripts/validate_weights.py`) pool the pixels of ``--pairs`` pairs per split.
+all of mipnet's bad-1 pixels that fall in the split. Generated sets (``synthetic``, ``scenes``, ``photos``: the
+validation pairs from seed 2,000,000, as `scripts/validate_weights.py`) pool the pixels of ``--pairs`` pairs per
+split.
 """
 
 from __future__ import annotations
@@ -30,12 +35,13 @@ import numpy as np
 from scipy import ndimage
 
 import mipnet
-from mipnet.data import PhotoStereo, SyntheticStereo
+from mipnet.data import PhotoStereo, SceneStereo, SyntheticStereo
 from mipnet.data.real import REAL_SETS, RealPairs
 from mipnet.data.synthetic import VALIDATION_SEED_START
 from mipnet.stereo.baselines import sgbm
 
 TEXTURE_BANDS = ((0.0, 4.0, "flat"), (4.0, 12.0, "some"), (12.0, np.inf, "strong"))
+JUMP_DISTANCE_BANDS = (0, 3, 6, 12, 24, 48, np.inf)
 
 
 def occluded(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -91,6 +97,9 @@ def splits(pair: dict) -> list[tuple[str, np.ndarray]]:
     edges = np.quantile(truth[valid], [0, 0.25, 0.5, 0.75, 1.0])
     for q, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
         rows.append((f"disparity quartile {q + 1}", valid & (truth >= lo) & (truth <= hi)))
+    distance = ndimage.distance_transform_edt(~near_edge(truth, valid, radius=1))
+    for lo, hi in zip(JUMP_DISTANCE_BANDS[:-1], JUMP_DISTANCE_BANDS[1:]):
+        rows.append((f"from a jump [{lo:g}, {hi:g}) px", valid & ~occ & (distance >= lo) & (distance < hi)))
     return rows
 
 
@@ -98,7 +107,7 @@ def pairs_of(name: str, count: int, size: tuple[int, int]) -> list[dict]:
     """The real pair ``name``, or ``count`` validation pairs of the generated set ``name`` at ``size``."""
     if name in REAL_SETS:
         return [RealPairs(name)[0]]
-    maker = {"synthetic": SyntheticStereo, "photos": PhotoStereo}[name]
+    maker = {"synthetic": SyntheticStereo, "scenes": SceneStereo, "photos": PhotoStereo}[name]
     return list(maker(count, *size, seed=VALIDATION_SEED_START))
 
 
@@ -106,7 +115,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--weights", default=None, help="weights file (default: the shipped ones)")
     parser.add_argument("--sets", nargs="+", default=["motorcycle", "cones"],
-                        choices=[*REAL_SETS, "synthetic", "photos"])
+                        choices=[*REAL_SETS, "synthetic", "scenes", "photos"])
     parser.add_argument("--pairs", type=int, default=6, help="pairs of a generated set")
     parser.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"),
                         help="size of a generated set's pairs")
