@@ -48,7 +48,7 @@ from .synthetic import EVAL_SEED_START, GeneratedStereo, check_seed, check_size
 
 __all__ = ["make_photo_pair", "PhotoStereo", "PHOTO_GENERATOR_VERSION"]
 
-PHOTO_GENERATOR_VERSION = "photo-pairs-3"
+PHOTO_GENERATOR_VERSION = "photo-pairs-4"
 _MAX_X_SLOPE = 0.4  # |dd/dx| bound of a surface: u -> u - d(u) stays increasing, stretch within [0.6, 1.4]
 _MIXED_STEP = 1.0  # a disparity step of at most this many px between neighbouring surfaces renders as mixed pixels
 _D_FLOOR = 0.25  # smallest disparity (px)
@@ -62,7 +62,8 @@ _STREAM = 0x5EED_F070  # the pair's random stream: default_rng([seed, _STREAM])
 
 def _segments(image: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Felzenszwalb's segmentation of ``image`` at a random scale, and a coarse grouping of its segments into a
-    few surfaces: adjacent segments merged in order of mean-colour distance (Kruskal) until 2-12 groups remain.
+    few surfaces: adjacent segments merged in order of mean-colour distance (Kruskal) until 2-48 groups remain
+    (log-uniform: from a few large surfaces to a cluttered scene with depth edges everywhere).
 
     Returns (H, W) segment labels 0..n-1 and each segment's group 0..g-1."""
     try:
@@ -90,7 +91,7 @@ def _segments(image: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, 
             i = parent[i]
         return i
 
-    groups, target = count, int(rng.integers(2, 13))
+    groups, target = count, int(np.exp(rng.uniform(np.log(2), np.log(49))))
     for a, b in pairs[np.argsort(distance, kind="stable")]:
         if groups <= target:
             break
@@ -181,8 +182,8 @@ class _Layout:
         self.c, self.gx, self.gy, self.q = c[group], gx[group], gy[group], q[group]
         # some segments of moderate size are objects in front of their group, with a plane of their own
         pixels, s_cx, s_cy = _centroids(labels, count)
-        moderate = (pixels > 2e-3 * labels.size) & (pixels < 0.08 * labels.size)
-        objects = moderate & (rng.random(count) < rng.uniform(0.0, 0.1))
+        moderate = (pixels > 5e-4 * labels.size) & (pixels < 0.08 * labels.size)
+        objects = moderate & (rng.random(count) < rng.uniform(0.0, 0.3))
         own_c = self.field(np.arange(count), s_cx, s_cy) * np.exp(rng.uniform(0.1, 0.8, count)) + 1.0
         own_gx, own_gy, own_q = _keep_positive(labels, s_cx, s_cy, own_c, (
             own_c * _slants(rng, count) / focal, own_c * _slants(rng, count) / focal, np.zeros(count)))
