@@ -333,12 +333,14 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
     // equal K blocks of kcb and column blocks of ncb (the chains do not depend on them)
     let (kcb, ncb) = (plan.kc_for(k), plan.nc_for(n));
     let (kc_max, nc_max) = (kcb.min(k.max(1)), ncb.min(n.div_ceil(nr) * nr));
-    // bf16 plans also hold the chunk's A panels and the B block as pairs: every K block but the last
-    // has an even depth, so A's pairs take ceil(k / 2) rows of depth and block p0 starts at (p0 / 2)·mpad
-    let (a_pairs, b_pairs) = match plan.pairs {
-        true => (chunk.div_ceil(mr) * mr * k.div_ceil(2), kc_max.div_ceil(2) * nc_max),
-        false => (0, 0),
+    // bf16 plans also hold the chunk's A panels (a prepacked A has them already) and the B block as
+    // pairs: every K block but the last has an even depth, so A's pairs take ceil(k / 2) rows of depth
+    // and block p0 starts at (p0 / 2)·mpad
+    let a_pairs = match (plan.pairs, a) {
+        (true, SourceA::Strided(_)) => chunk.div_ceil(mr) * mr * k.div_ceil(2),
+        _ => 0,
     };
+    let b_pairs = if plan.pairs { kc_max.div_ceil(2) * nc_max } else { 0 };
     with_bufs((a_len + a_pairs) * es, (nc_max * kc_max + b_pairs) * es, |pa, pb| {
         let (pa, pb) = (pa.cast::<E>(), pb.cast::<E>());
         let (pa_pairs, pb_pairs) = (pa.wrapping_add(a_len), pb.wrapping_add(nc_max * kc_max));
@@ -348,17 +350,17 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
             let (apack, mpad, row0) = match a {
                 SourceA::Rows(p, row0) => (p.data(plan, k, row0).expect("gemm: A prepacked for another plan or depth"), p.mpad, row0),
                 SourceA::Strided(s) => {
-                    // SAFETY: `pa` has room for the chunk's panels over all of K.
-                    unsafe { s.pack_rows(plan, ic, mc, pa) };
-                    (pa.cast_const(), mc.div_ceil(mr) * mr, 0)
+                    let mpad = mc.div_ceil(mr) * mr;
+                    // SAFETY: `pa` has room for the chunk's panels over all of K, `pa_pairs` (bf16 plans)
+                    // for their pairs.
+                    unsafe {
+                        s.pack_rows(plan, ic, mc, pa);
+                        if plan.pairs {
+                            pair_rows(pa.cast(), mpad, k, kcb, mr, pa_pairs.cast());
+                        }
+                    }
+                    (if plan.pairs { pa_pairs } else { pa }.cast_const(), mpad, 0)
                 }
-            };
-            let (apack, mpad, row0) = if plan.pairs {
-                // SAFETY: the rows row0..row0 + mc of the packed A exist; `pa_pairs` has room for their pairs.
-                unsafe { pair_rows(apack.cast(), mpad, row0, mc, k, kcb, mr, pa_pairs.cast()) };
-                (pa_pairs.cast_const(), mc.div_ceil(mr) * mr, 0)
-            } else {
-                (apack, mpad, row0)
             };
             for jc in (0..n).step_by(ncb) {
                 let nc = ncb.min(n - jc);
@@ -419,21 +421,18 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
     });
 }
 
-/// The packed rows row0..row0 + mc of an A (layout of [`Strided::pack_rows`], `mpad` rows, depth k in
-/// blocks of kcb) as bf16 pairs into `dst`: block p0 at (p0 / 2)·mpad', panel p of it at p·MR·ceil(kc / 2),
-/// mpad' = mc rounded up to MR.
+/// An A packed by [`Strided::pack_rows`] (`mpad` rows, depth k in blocks of kcb) as bf16 pairs into
+/// `dst`: block p0 at (p0 / 2)·mpad, panel p of it at p·MR·ceil(kc / 2).
 ///
 /// # Safety
-/// The rows exist in `src`; `dst` has room for mpad'·ceil(k / 2) elements.
-#[allow(clippy::too_many_arguments)]
-unsafe fn pair_rows(src: *const f32, mpad: usize, row0: usize, mc: usize, k: usize, kcb: usize, mr: usize, dst: *mut f32) {
-    let mpad_pairs = mc.div_ceil(mr) * mr;
+/// `src` holds the packed A; `dst` has room for mpad·ceil(k / 2) elements.
+unsafe fn pair_rows(src: *const f32, mpad: usize, k: usize, kcb: usize, mr: usize, dst: *mut f32) {
     for p0 in (0..k).step_by(kcb) {
         let kc = kcb.min(k - p0);
-        for p in 0..mc.div_ceil(mr) {
-            // source panel: block p0 at p0·mpad, rows row0 + p·MR.. at (row0 + p·MR)·kc; MR wide, depth-major
-            let from = src.wrapping_add(p0 * mpad + (row0 + p * mr) * kc);
-            let to = dst.wrapping_add(p0 / 2 * mpad_pairs + p * mr * kc.div_ceil(2));
+        for p in 0..mpad / mr {
+            // source panel: block p0 at p0·mpad, rows p·MR.. at p·MR·kc; MR wide, depth-major
+            let from = src.wrapping_add(p0 * mpad + p * mr * kc);
+            let to = dst.wrapping_add(p0 / 2 * mpad + p * mr * kc.div_ceil(2));
             // SAFETY: both panels lie in their buffers (the contract).
             unsafe { pack::pair_panel(kc, mr, from, mr, to) };
         }

@@ -88,6 +88,12 @@ fn bf16_plan_sums_products_of_bf16_rounded_operands_in_f32() {
             let mut c1 = c0.clone();
             gemm_ex(plan, 1.0, a.view(), b.view(), 1.0, c1.view_mut(), Epilogue::default());
             assert!(max_err(&c1, &(want + c0.mapv(f64::from))) < tol(k), "bf16 {m}x{k}x{n} beta 1");
+            // on 2 threads a wide C takes A prepacked once as bf16 pairs (`Prepacked`), a tall one packs
+            // per task: the same chains, so the same bits as the one-call product
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+            let mut cp = Array2::<f32>::from_elem((m, n), f32::NAN);
+            pool.install(|| gemm_par_with(plan, 1.0, a.view(), b.view(), 0.0, cp.view_mut()));
+            assert_eq!(c, cp, "bf16 {m}x{k}x{n} ta={ta} tb={tb} on 2 threads");
         }
     }
 }

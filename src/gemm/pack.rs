@@ -124,7 +124,8 @@ impl<E: Float> PackB<E> for InPlace<E> {
 }
 
 /// A whole A packed once for a plan (conv weights: packed once per call, shared by its tasks), in
-/// the layout of [`Strided::pack_rows`].
+/// the layout of [`Strided::pack_rows`]; for a bf16 plan (`plan.pairs`) each panel is already the
+/// panel of depth pairs that [`pair_panel`] makes of it, so the GEMM reads it as it is.
 pub(crate) struct Prepacked<E> {
     data: Vec<E>,
     /// Rows rounded up to a multiple of MR.
@@ -133,33 +134,49 @@ pub(crate) struct Prepacked<E> {
     kc: usize,
     /// Depth of A.
     k: usize,
+    /// Panels of bf16 pairs (packed for a bf16 plan).
+    pairs: bool,
 }
 
 impl<E: Float> Prepacked<E> {
-    /// Packs `a` (m x k) for `plan`, panel by panel in parallel (the layout of [`Strided::pack_rows`]).
+    /// Packs `a` (m x k) for `plan`, panel by panel in parallel (the layout of [`Strided::pack_rows`],
+    /// as bf16 pairs for a bf16 plan).
     pub(crate) fn new(plan: &Plan<E>, a: &Strided<E>) -> Self {
-        let (mr, k) = (plan.mr, a.cols);
+        let (mr, k, pairs) = (plan.mr, a.cols, plan.pairs);
         let mpad = a.rows.div_ceil(mr) * mr;
-        let len = mpad * k.max(1);
+        // rows of a panel over depth kc: kc, or ceil(kc / 2) rows of pairs (every block but the last
+        // has an even depth, so the pairs never straddle two blocks)
+        let depth = |kc: usize| if pairs { kc.div_ceil(2) } else { kc };
+        let len = mpad * depth(k).max(1);
         if k == 0 || a.rows == 0 {
-            return Prepacked { data: vec![E::zero(); len], mpad, mr, kc: plan.kc, k };
+            return Prepacked { data: vec![E::zero(); len], mpad, mr, kc: plan.kc, k, pairs };
         }
         // every panel below is written whole (padding rows included), so nothing is zeroed first
         let mut data = Vec::<E>::with_capacity(len);
         let kcb = plan.kc_for(k);
-        // K block p0 = b·kcb is the b-th run of mpad·kcb elements (the last one mpad·kc), panel p
-        // of it (rows p·MR..) the p-th run of kc·MR elements there
-        data.spare_capacity_mut()[..len].par_chunks_mut(mpad * kcb).enumerate().for_each(|(b, block)| {
-            let (p0, kc) = (b * kcb, block.len() / mpad);
-            block.par_chunks_mut(kc * mr).enumerate().for_each(|(p, dst)| {
-                // SAFETY: dst holds kc·MR elements (MaybeUninit<E> is laid out as E), all written by the
-                // pack; rows p·MR.. < a.rows and depths p0..p0 + kc exist.
-                unsafe { a.pack_panel(plan, p0, kc, p * mr, a.rows, dst.as_mut_ptr().cast()) };
+        // K block p0 = b·kcb is the b-th run of mpad·depth(kcb) elements, panel p of it (rows p·MR..)
+        // the p-th run of depth(kc)·MR elements there
+        data.spare_capacity_mut()[..len].par_chunks_mut(mpad * depth(kcb)).enumerate().for_each(|(b, block)| {
+            let (p0, kc) = (b * kcb, kcb.min(k - b * kcb));
+            block.par_chunks_mut(depth(kc) * mr).enumerate().for_each_init(Vec::new, |f32_panel: &mut Vec<E>, (p, dst)| {
+                let dst = dst.as_mut_ptr().cast::<E>();
+                // SAFETY: dst holds depth(kc)·MR elements (MaybeUninit<E> is laid out as E), all written
+                // below; rows p·MR.. < a.rows and depths p0..p0 + kc exist. A bf16 plan is an f32 plan on a
+                // CPU with AVX512_BF16 (`Plan::bf16`), which `pair_panel` needs.
+                unsafe {
+                    if pairs {
+                        f32_panel.resize(kc * mr, E::zero());
+                        a.pack_panel(plan, p0, kc, p * mr, a.rows, f32_panel.as_mut_ptr());
+                        pair_panel(kc, mr, f32_panel.as_ptr().cast(), mr, dst.cast());
+                    } else {
+                        a.pack_panel(plan, p0, kc, p * mr, a.rows, dst);
+                    }
+                }
             });
         });
         // SAFETY: the blocks cover the first len elements and every panel was written whole.
         unsafe { data.set_len(len) };
-        Prepacked { data, mpad, mr, kc: plan.kc, k }
+        Prepacked { data, mpad, mr, kc: plan.kc, k, pairs }
     }
 
     /// Bytes of the packed data.
@@ -167,10 +184,11 @@ impl<E: Float> Prepacked<E> {
         std::mem::size_of_val(self.data.as_slice())
     }
 
-    /// The packed data, after checking it was packed for `plan`'s MR and KC and for depth k, and
-    /// that `row0` starts a panel.
+    /// The packed data, after checking it was packed for `plan`'s MR, KC and pairing and for depth k,
+    /// and that `row0` starts a panel.
     pub(crate) fn data(&self, plan: &Plan<E>, k: usize, row0: usize) -> Option<*const E> {
-        let fits = plan.mr == self.mr && plan.kc == self.kc && k == self.k && row0.is_multiple_of(self.mr) && row0 <= self.mpad;
+        let fits = plan.mr == self.mr && plan.kc == self.kc && plan.pairs == self.pairs && k == self.k
+            && row0.is_multiple_of(self.mr) && row0 <= self.mpad;
         fits.then_some(self.data.as_ptr())
     }
 }

@@ -33,6 +33,8 @@ struct Key {
     isa: Isa,
     mr: usize,
     kc: usize,
+    /// Whether U is packed as bf16 pairs (a bf16 plan).
+    pairs: bool,
     cout: usize,
     cin: usize,
 }
@@ -71,7 +73,7 @@ fn bytes_of<F: Float>(w: &[F]) -> &[u8] {
 /// then cached.
 pub(super) fn transformed<F: Float>(scheme: Scheme, plan: &Plan<F>, w: &[F], cout: usize, cin: usize,
                                     build: impl FnOnce() -> Vec<Prepacked<F>>) -> Arc<Vec<Prepacked<F>>> {
-    let key = Key { float: TypeId::of::<F>(), scheme, isa: plan.isa, mr: plan.mr, kc: plan.kc, cout, cin };
+    let key = Key { float: TypeId::of::<F>(), scheme, isa: plan.isa, mr: plan.mr, kc: plan.kc, pairs: plan.pairs, cout, cin };
     let kernel = bytes_of(w);
     {
         let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
