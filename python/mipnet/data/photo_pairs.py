@@ -175,8 +175,9 @@ class _Layout:
         ground = np.zeros(groups, bool)
         if rng.random() < 0.6:
             ground = self._scene_prior(grouped, g_pixels, g_cy, (c, gx, gy, q), rng, d_far, d_max)
-        gx, gy, q = _keep_positive(grouped, g_cx, g_cy, c, (gx, gy, q), exempt=ground)
-        gx, q = _bound_slope(grouped, g_cx, gx, q)
+        g_reach = _reach(grouped, g_cx, g_cy)
+        gx, gy, q = _keep_positive(g_reach, c, (gx, gy, q), exempt=ground)
+        gx, q = _bound_slope(g_reach[0], gx, q)
         # every segment starts as a copy of its group's field
         self.cx, self.cy = g_cx[group], g_cy[group]
         self.c, self.gx, self.gy, self.q = c[group], gx[group], gy[group], q[group]
@@ -185,9 +186,10 @@ class _Layout:
         moderate = (pixels > 5e-4 * labels.size) & (pixels < 0.08 * labels.size)
         objects = moderate & (rng.random(count) < rng.uniform(0.0, 0.3))
         own_c = self.field(np.arange(count), s_cx, s_cy) * np.exp(rng.uniform(0.1, 0.8, count)) + 1.0
-        own_gx, own_gy, own_q = _keep_positive(labels, s_cx, s_cy, own_c, (
+        s_reach = _reach(labels, s_cx, s_cy)
+        own_gx, own_gy, own_q = _keep_positive(s_reach, own_c, (
             own_c * _slants(rng, count) / focal, own_c * _slants(rng, count) / focal, np.zeros(count)))
-        own_gx, own_q = _bound_slope(labels, s_cx, own_gx, own_q)
+        own_gx, own_q = _bound_slope(s_reach[0], own_gx, own_q)
         self.cx, self.cy = np.where(objects, s_cx, self.cx), np.where(objects, s_cy, self.cy)
         self.c, self.gx = np.where(objects, own_c, self.c), np.where(objects, own_gx, self.gx)
         self.gy, self.q = np.where(objects, own_gy, self.gy), np.where(objects, own_q, self.q)
@@ -275,13 +277,14 @@ def _reach(labels: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> tuple[np.ndarr
     return reach_x, reach_y
 
 
-def _keep_positive(labels: np.ndarray, cx: np.ndarray, cy: np.ndarray, c: np.ndarray, slopes: tuple,
+def _keep_positive(reach: tuple[np.ndarray, np.ndarray], c: np.ndarray, slopes: tuple,
                    exempt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(gx, gy, q)`` scaled so that each label's field stays above _KEPT_SHARE of its ``c`` over its pixels
-    (a slanted plane that reaches zero disparity would run to the horizon and be clipped flat there); the
-    ``exempt`` labels (the ground plane, which does reach its horizon) are left as they are."""
+    """``(gx, gy, q)`` scaled so that each label's field stays above _KEPT_SHARE of its ``c`` over its pixels,
+    whose extents about the label's centre are ``reach`` (:func:`_reach`): a slanted plane that reaches zero
+    disparity would run to the horizon and be clipped flat there. The ``exempt`` labels (the ground plane, which
+    does reach its horizon) are left as they are."""
     gx, gy, q = slopes
-    reach_x, reach_y = _reach(labels, cx, cy)
+    reach_x, reach_y = reach
     # the field's lowest value over the label: c - |gx| reach_x - |gy| reach_y - |q| (reach_x^2 + reach_y^2)
     drop = np.abs(gx) * reach_x + np.abs(gy) * reach_y + np.abs(q) * (reach_x ** 2 + reach_y ** 2)
     scale = np.minimum(1.0, (1.0 - _KEPT_SHARE) * c / np.maximum(drop, 1e-12))
@@ -290,10 +293,10 @@ def _keep_positive(labels: np.ndarray, cx: np.ndarray, cy: np.ndarray, c: np.nda
     return gx * scale, gy * scale, q * scale
 
 
-def _bound_slope(labels: np.ndarray, cx: np.ndarray, gx: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``gx`` and ``q`` scaled so that |dd/dx| = |gx + 2 q (u - cx)| <= _MAX_X_SLOPE over each label's pixels."""
-    reach = _reach(labels, cx, np.zeros_like(cx))[0]
-    scale = np.minimum(1.0, _MAX_X_SLOPE / np.maximum(np.abs(gx) + 2 * np.abs(q) * reach, 1e-12))
+def _bound_slope(reach_x: np.ndarray, gx: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``gx`` and ``q`` scaled so that |dd/dx| = |gx + 2 q (u - cx)| <= _MAX_X_SLOPE over each label's pixels,
+    whose largest |u - cx| is ``reach_x``."""
+    scale = np.minimum(1.0, _MAX_X_SLOPE / np.maximum(np.abs(gx) + 2 * np.abs(q) * reach_x, 1e-12))
     return gx * scale, q * scale
 
 
