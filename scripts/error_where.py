@@ -4,6 +4,7 @@ jump, beside OpenCV's SGBM.
 
     python scripts/error_where.py [--weights W] [--sets motorcycle cones] [--iters 6 6]
     python scripts/error_where.py --sets synthetic scenes photos --pairs 6 --size 384 512    # validation pairs, pooled
+    python scripts/error_where.py --resolution      # bad-1 by distance to a jump: the output, its 1/4 field, the truth's
 
 An analysis for the closing notes of the real-photograph work, never a way to choose weights or settings (the
 real pairs are evaluation data only). The splits come from the ground truth and the left image alone:
@@ -25,6 +26,14 @@ truth) / median absolute error for mipnet and SGBM (64 disparities, block 5, hol
 all of mipnet's bad-1 pixels that fall in the split. Generated sets (``synthetic``, ``scenes``, ``photos``: the
 validation pairs from seed 2,000,000, as `scripts/validate_weights.py`) pool the pixels of ``--pairs`` pairs per
 split.
+
+``--resolution`` asks instead whether the error at depth jumps is set by the 1/4 resolution the network matches at.
+Per band of distance to a jump it prints bad-1 of: the field the 1/16 level hands to the 1/4 level (at full
+resolution, as `iters=(n16, 0)` outputs it); the network's output (its 1/4 field upsampled by the learned
+convex weights); that 1/4 field (the state's ``flow4``) upsampled bilinearly; and two fields made from the ground truth
+at the same 1/4 resolution (the median of each 4x4 block's valid truth), upsampled by nearest neighbour and
+bilinearly. The truth's rows bound what a perfect 1/4 field gives without learned upsampling; where the network's own
+field falls far short of them, its error lies in the matching at 1/4, not in the resolution.
 """
 
 from __future__ import annotations
@@ -38,6 +47,7 @@ import mipnet
 from mipnet.data import PhotoStereo, SceneStereo, SyntheticStereo
 from mipnet.data.real import REAL_SETS, RealPairs
 from mipnet.data.synthetic import VALIDATION_SEED_START
+from mipnet.model.network import _padding as network_padding
 from mipnet.stereo.baselines import sgbm
 
 TEXTURE_BANDS = ((0.0, 4.0, "flat"), (4.0, 12.0, "some"), (12.0, np.inf, "strong"))
@@ -111,6 +121,69 @@ def pairs_of(name: str, count: int, size: tuple[int, int]) -> list[dict]:
     return list(maker(count, *size, seed=VALIDATION_SEED_START))
 
 
+def quarter_truth(truth: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The truth at 1/4 resolution in 1/4-pixel units: the median of each 4x4 block's valid disparities (a block
+    with none takes the nearest block's value)."""
+    height, width = truth.shape
+    blocks = np.full((-(-height // 4) * 4, -(-width // 4) * 4), np.nan)
+    blocks[:height, :width] = np.where(valid, truth, np.nan)
+    # block (i, j) holds pixels 4i..4i+3 x 4j..4j+3
+    blocks = blocks.reshape(blocks.shape[0] // 4, 4, blocks.shape[1] // 4, 4).transpose(0, 2, 1, 3).reshape(
+        blocks.shape[0] // 4, blocks.shape[1] // 4, 16)
+    empty = np.isnan(blocks).all(axis=2)
+    field = np.zeros(empty.shape)
+    field[~empty] = np.nanmedian(blocks[~empty], axis=1) / 4
+    if empty.any():
+        nearest = ndimage.distance_transform_edt(empty, return_distances=False, return_indices=True)
+        field = field[tuple(nearest)]
+    return field
+
+
+def upsample(field: np.ndarray, shape: tuple[int, int], order: int, offset: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """A 1/4-resolution disparity field (1/4-pixel units) whose block (i, j) covers full-resolution pixels 4i..4i+3 x
+    4j..4j+3 of an image padded by ``offset`` (top, left), at full resolution in pixels over ``shape``: nearest block
+    (order 0), or bilinear (order 1) between block centres 4j + 1.5."""
+    ys, xs = np.arange(shape[0]) + offset[0], np.arange(shape[1]) + offset[1]
+    if order == 0:
+        return 4 * field[(ys // 4)[:, None], (xs // 4)[None, :]]
+    grid = np.meshgrid((ys - 1.5) / 4, (xs - 1.5) / 4, indexing="ij")
+    return 4 * ndimage.map_coordinates(field, grid, order=1, mode="nearest")
+
+
+def resolution_table(model, name: str, pairs: list[dict], iters: tuple[int, int]) -> None:
+    """bad-1 (%) by distance to a jump of the output, its 1/4 field and the truth's 1/4 fields (see --resolution)."""
+    columns = ("1/16 hand-over", "output (convex)", "its 1/4 field, bilinear", "truth at 1/4, nearest",
+               "truth at 1/4, bilinear")
+    pooled: dict[str, list[list[np.ndarray]]] = {}
+    for pair in pairs:
+        truth, valid = pair["disparity"], pair["valid"]
+        height, width = truth.shape
+        pred, state = model.forward_with_state(pair["left"], pair["right"], iters=iters)
+        # the state's fields cover the image padded as the network pads it (flow4's x component is -disparity)
+        left, _, top, _ = network_padding(height, width)
+        # (n16, 0) iterations stop at 1/16 and output the field handed to the 1/4 level, upsampled
+        handover = model(pair["left"], pair["right"], iters=(iters[0], 0))
+        fields = [handover, pred, upsample(-state.flow4[0, 0], (height, width), 1, (top, left))]
+        quarter = quarter_truth(truth, valid)
+        fields += [upsample(quarter, (height, width), 0), upsample(quarter, (height, width), 1)]
+        occ = occluded(truth, valid)
+        distance = ndimage.distance_transform_edt(~near_edge(truth, valid, radius=1))
+        bands = [("all visible", valid & ~occ)]
+        bands += [(f"from a jump [{lo:g}, {hi:g}) px", valid & ~occ & (distance >= lo) & (distance < hi))
+                  for lo, hi in zip(JUMP_DISTANCE_BANDS[:-1], JUMP_DISTANCE_BANDS[1:])]
+        for label, mask in bands:
+            rows = pooled.setdefault(label, [[] for _ in columns])
+            for k, field in enumerate(fields):
+                rows[k].append(np.abs(field[mask] - truth[mask]) > 1)
+    print(f"\n{name}: bad-1 (%) by distance to a jump, iterations {iters}")
+    print(f"{'band':<28} {'share':>6}  " + "  ".join(f"{c:>23}" for c in columns))
+    total = sum(a.size for a in pooled["all visible"][0])
+    for label, rows in pooled.items():
+        bad = [np.concatenate(r) for r in rows]
+        if bad[0].size:
+            print(f"{label:<28} {bad[0].size / total * 100:5.1f}%  " + "  ".join(f"{b.mean() * 100:22.1f}%" for b in bad))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--weights", default=None, help="weights file (default: the shipped ones)")
@@ -120,9 +193,14 @@ def main() -> None:
     parser.add_argument("--size", type=int, nargs=2, default=(384, 512), metavar=("H", "W"),
                         help="size of a generated set's pairs")
     parser.add_argument("--iters", type=int, nargs=2, default=(6, 6))
+    parser.add_argument("--resolution", action="store_true",
+                        help="bad-1 by distance to a jump of the output, its 1/4 field and the truth at 1/4")
     args = parser.parse_args()
     model = (mipnet.load(args.weights) if args.weights else mipnet.MIPNet.pretrained()).eval()
     for name in args.sets:
+        if args.resolution:
+            resolution_table(model, name, pairs_of(name, args.pairs, tuple(args.size)), tuple(args.iters))
+            continue
         pooled: dict[str, list] = {}
         valid_pixels = 0
         for pair in pairs_of(name, args.pairs, tuple(args.size)):
