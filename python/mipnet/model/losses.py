@@ -10,7 +10,13 @@ from .. import ops
 from ..errors import ArgumentError, ShapeError
 from ..tensor import Tensor
 
-__all__ = ["valid_mask", "sequence_loss", "sequence_metrics"]
+__all__ = ["valid_mask", "near_jump", "sequence_loss", "sequence_metrics"]
+
+#: Distance (px, a square window) from a ground-truth depth jump within which ``sequence_loss``'s ``edge_weight``
+#: term counts a pixel: the band where the network bleeds disparity across depth edges (docs/training.md).
+EDGE_RADIUS = 12
+#: A jump: more than this many pixels between the disparities of two neighbouring valid pixels.
+EDGE_JUMP = 2.0
 
 
 def _as_n1hw(a: Any, name: str, like: Tensor) -> np.ndarray:
@@ -31,12 +37,39 @@ def valid_mask(gt: np.ndarray, valid: np.ndarray | None, max_disp: float) -> np.
     return ok
 
 
+def _dilate(mask: np.ndarray, radius: int, axis: int) -> np.ndarray:
+    """``mask`` grown by ``radius`` positions both ways along ``axis`` (a running window count)."""
+    counts = np.cumsum(mask, axis=axis, dtype=np.int64)
+    n = mask.shape[axis]
+    # window [i - r, i + r] holds counts[min(i + r, n - 1)] - counts[i - r - 1] (0 before the start)
+    hi = np.take(counts, np.minimum(np.arange(n) + radius, n - 1), axis=axis)
+    lo_index = np.arange(n) - radius - 1
+    lo = np.where(np.reshape(lo_index >= 0, [-1 if a == axis % mask.ndim else 1 for a in range(mask.ndim)]),
+                  np.take(counts, np.maximum(lo_index, 0), axis=axis), 0)
+    return hi - lo > 0
+
+
+def near_jump(gt: np.ndarray, ok: np.ndarray, radius: int = EDGE_RADIUS, jump: float = EDGE_JUMP) -> np.ndarray:
+    """The ``ok`` pixels within ``radius`` px (a square window) of a jump of more than ``jump`` px between the
+    disparities ``gt`` of two horizontally or vertically neighbouring ``ok`` pixels; arrays (..., H, W)."""
+    edge = np.zeros(ok.shape, bool)
+    # neighbours (y, x) and (y, x + 1), then (y, x) and (y + 1, x)
+    h = ok[..., :, 1:] & ok[..., :, :-1] & (np.abs(gt[..., :, 1:] - gt[..., :, :-1]) > jump)
+    v = ok[..., 1:, :] & ok[..., :-1, :] & (np.abs(gt[..., 1:, :] - gt[..., :-1, :]) > jump)
+    edge[..., :, 1:] |= h
+    edge[..., :, :-1] |= h
+    edge[..., 1:, :] |= v
+    edge[..., :-1, :] |= v
+    return _dilate(_dilate(edge, radius, -1), radius, -2) & ok
+
+
 def sequence_loss(preds: Sequence[Tensor], gt: Any, valid: Any = None, gamma: float = 0.8,
-                  max_disp: float = 700.0) -> Tensor:
-    """L = Σ_i gamma^(n-1-i) · mean_{valid} |d_i - d_gt| over the n predictions (a 0-d Tensor).
+                  max_disp: float = 700.0, edge_weight: float = 0.0) -> Tensor:
+    """L = Σ_i gamma^(n-1-i) · (mean_{valid} |d_i - d_gt| + edge_weight · mean_{near a jump} |d_i - d_gt|) over
+    the n predictions (a 0-d Tensor); "near a jump": the valid pixels of :func:`near_jump`.
 
     Invalid ground truth is zeroed before the subtraction, so NaN/inf there never reaches the
-    gradient; a prediction with no valid pixel contributes 0.
+    gradient; a prediction with no valid pixel (no pixel near a jump) contributes 0 (to that term).
 
     Shapes:
         preds: n Tensors (N,1,H,W); gt, valid: (N,1,H,W) or (N,H,W) arrays or Tensors.
@@ -48,8 +81,14 @@ def sequence_loss(preds: Sequence[Tensor], gt: Any, valid: Any = None, gamma: fl
     ok = valid_mask(gt_arr, None if valid is None else _as_n1hw(valid, "valid", ref), max_disp)
     target = np.where(ok, gt_arr, 0).astype(ref.dtype)
     weight = ok.astype(ref.dtype)
+    edge = near_jump(target, ok).astype(ref.dtype) if edge_weight else None
     n = len(preds)
-    terms = [ops.masked_l1_loss(p, target, weight) * float(gamma ** (n - 1 - i)) for i, p in enumerate(preds)]
+
+    def term(p: Tensor) -> Tensor:
+        l1 = ops.masked_l1_loss(p, target, weight)
+        return l1 if edge is None else l1 + ops.masked_l1_loss(p, target, edge) * float(edge_weight)
+
+    terms = [term(p) * float(gamma ** (n - 1 - i)) for i, p in enumerate(preds)]
     total = terms[0]
     for t in terms[1:]:
         total = total + t

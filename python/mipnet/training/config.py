@@ -74,6 +74,10 @@ class TrainConfig:
         Probability of dim light and sensor noise on a training crop (``noise_prob`` of
         :class:`mipnet.training.StereoAugmentor`), independent of depth; 0 (default): off. Ignored
         without ``augment``.
+    edge_weight : float
+        Weight of a second loss term, the mean error over the valid pixels within
+        :data:`mipnet.model.losses.EDGE_RADIUS` px of a ground-truth depth jump (``sequence_loss``'s
+        ``edge_weight``); 0 (default): the plain loss.
     noise_sources : str
         Which sources the noise augmentation reaches: ``"all"`` (default), or ``"air"``: every source
         but the generated under-water ones (``scenes-underwater``, ``synthetic-underwater``), whose
@@ -110,6 +114,7 @@ class TrainConfig:
     spatial_scale: tuple[float, float] = (-0.2, 0.4)
     veil: float = 0.0
     noise: float = 0.0
+    edge_weight: float = 0.0
     noise_sources: str = "all"
     data: list[str] = dataclasses.field(default_factory=lambda: list(DEFAULT_DATA))
     init: str | None = None
@@ -133,7 +138,7 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool):
                 raise ArgumentError(f"TrainConfig: {name} must be an integer, got {value!r}")
-        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp", "veil", "noise"):
+        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp", "veil", "noise", "edge_weight"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
                 raise ArgumentError(f"TrainConfig: {name} must be a finite number, got {value!r}")
@@ -162,6 +167,8 @@ class TrainConfig:
         for name in ("veil", "noise"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ArgumentError(f"TrainConfig: {name} is a probability in [0, 1], got {getattr(self, name)}")
+        if self.edge_weight < 0:
+            raise ArgumentError(f"TrainConfig: edge_weight must be >= 0, got {self.edge_weight}")
         if self.val_every < 0 or self.val_pairs < 0 or self.workers < 0:
             raise ArgumentError("TrainConfig: val_every, val_pairs and workers must be >= 0")
         if not self.data:

@@ -244,7 +244,8 @@ def backward_pass(model: MIPNet, sample: dict, config: TrainConfig, *, disp_init
     """
     left, right = (sample[k].transpose(0, 3, 1, 2).astype(model.dtype) for k in ("left", "right"))
     preds = model(left, right, iters=config.iters, disp_init=disp_init)
-    loss = sequence_loss(preds, sample["disparity"], sample["valid"], gamma=config.gamma, max_disp=config.max_disp)
+    loss = sequence_loss(preds, sample["disparity"], sample["valid"], gamma=config.gamma, max_disp=config.max_disp,
+                         edge_weight=config.edge_weight)
     if weight != 1.0:
         loss = loss * weight
     loss.backward()
