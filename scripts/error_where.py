@@ -47,6 +47,7 @@ import mipnet
 from mipnet.data import PhotoStereo, SceneStereo, SyntheticStereo
 from mipnet.data.real import REAL_SETS, RealPairs
 from mipnet.data.synthetic import VALIDATION_SEED_START
+from mipnet.model.losses import near_jump
 from mipnet.model.network import _padding as network_padding
 from mipnet.stereo.baselines import sgbm
 
@@ -70,14 +71,8 @@ def occluded(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 def near_edge(disparity: np.ndarray, valid: np.ndarray, jump: float = 2.0, radius: int = 3) -> np.ndarray:
     """Pixels within ``radius`` px of a jump of more than ``jump`` px between neighbouring valid truths."""
-    edge = np.zeros_like(valid)
-    # horizontal neighbours (y, x) and (y, x + 1), then vertical ones (y, x) and (y + 1, x)
-    h = valid[:, 1:] & valid[:, :-1] & (np.abs(disparity[:, 1:] - disparity[:, :-1]) > jump)
-    v = valid[1:, :] & valid[:-1, :] & (np.abs(disparity[1:, :] - disparity[:-1, :]) > jump)
-    edge[:, 1:] |= h
-    edge[:, :-1] |= h
-    edge[1:, :] |= v
-    edge[:-1, :] |= v
+    # the jump pixels themselves (the training loss's rule, at radius 0), then grown by a diamond of `radius` steps
+    edge = near_jump(disparity, valid, radius=0, jump=jump)
     return ndimage.binary_dilation(edge, iterations=radius) & valid
 
 

@@ -39,14 +39,12 @@ def valid_mask(gt: np.ndarray, valid: np.ndarray | None, max_disp: float) -> np.
 
 def _dilate(mask: np.ndarray, radius: int, axis: int) -> np.ndarray:
     """``mask`` grown by ``radius`` positions both ways along ``axis`` (a running window count)."""
-    counts = np.cumsum(mask, axis=axis, dtype=np.int64)
     n = mask.shape[axis]
-    # window [i - r, i + r] holds counts[min(i + r, n - 1)] - counts[i - r - 1] (0 before the start)
-    hi = np.take(counts, np.minimum(np.arange(n) + radius, n - 1), axis=axis)
-    lo_index = np.arange(n) - radius - 1
-    lo = np.where(np.reshape(lo_index >= 0, [-1 if a == axis % mask.ndim else 1 for a in range(mask.ndim)]),
-                  np.take(counts, np.maximum(lo_index, 0), axis=axis), 0)
-    return hi - lo > 0
+    # counts[i] = number of set positions before i; window [i - r, i + r] holds counts[i + r + 1] - counts[i - r], clipped
+    first = np.zeros_like(np.take(mask, [0], axis=axis), dtype=np.int64)
+    counts = np.concatenate([first, np.cumsum(mask, axis=axis, dtype=np.int64)], axis=axis)
+    index = np.arange(n)
+    return np.take(counts, np.minimum(index + radius + 1, n), axis=axis) > np.take(counts, np.maximum(index - radius, 0), axis=axis)
 
 
 def near_jump(gt: np.ndarray, ok: np.ndarray, radius: int = EDGE_RADIUS, jump: float = EDGE_JUMP) -> np.ndarray:
