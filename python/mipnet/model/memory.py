@@ -29,8 +29,8 @@ __all__ = ["MemoryEstimate", "estimate", "activation_bytes", "activation_terms",
 
 MiB = 2**20
 #: Resident memory of a fresh process after ``import mipnet`` (interpreter, numpy, Pillow, the Rust
-#: core and its thread pool), before any model exists; measured on Linux x86-64 (42 MiB).
-BASE_PROCESS_BYTES = 42 * MiB
+#: core and its thread pool), before any model exists; measured on Linux x86-64 (48 MiB).
+BASE_PROCESS_BYTES = 48 * MiB
 #: glibc's malloc serves requests below its mmap threshold, which adapts up to 32 MiB on 64-bit
 #: Linux, from its heap and keeps freed heap memory in the process; larger requests get their own
 #: mapping, returned to the system when freed.
@@ -53,6 +53,9 @@ KERNEL_CACHE_BYTES = 128 * MiB
 #: Fewest tiles per image for a Winograd forward, by kernel shape (``Scheme::min_tiles`` in
 #: ``src/ops/conv/winograd.rs``): F(4x4, 3x3) tiles 4x4 pixels, F(4, 5) 4 pixels along the kernel.
 WINOGRAD_MIN_TILES = {(3, 3): 48, (1, 5): 32, (5, 1): 32}
+#: Partial sums of a direct weight gradient beyond the first, kept per thread (``DW_GROUPS - 1`` and
+#: ``PARTIALS`` in ``src/ops/conv.rs``), and each thread's im2col scratch (``SCRATCH_BYTES`` there).
+DW_PARTIALS, CONV_SCRATCH_BYTES = 3, 4 * MiB
 
 
 def recompute_heads(level_pixels: int, sub_updates: int, itemsize: int = 4) -> bool:
@@ -95,14 +98,15 @@ def activation_bytes(height: int, width: int, batch: int = 1, mode: str = "eval"
 
 
 def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval", iters: tuple[int, int] = (6, 6),
-                     config: Any = None, itemsize: int = 4) -> dict[str, float]:
+                     config: Any = None, itemsize: int = 4, threads: int | None = None) -> dict[str, float]:
     """THE memory model of the network: the parts of a pass's peak, in bytes, by name.
 
     Every term is (channels per image) x (pixels at its level) x ``itemsize``, at the levels of the
     padded input (H, W multiples of 16): 1 (full resolution), 2, 4 (features, 1/4 updates) and 16.
     Eval: ``live`` (the largest set of tensors alive at once) and ``allocator`` (what the heap keeps
     and kernels add on top). Training: what the forward saves for backward (``encoder``, ``levels``,
-    ``updates``, ``heads`` (see :func:`recompute_heads`), ``loss``) and the ``backward`` working set.
+    ``updates``, ``heads`` (see :func:`recompute_heads`), ``loss``), the ``backward`` working set and
+    the ``kernel_buffers`` that the convolutions' weight gradients allocate at the size of a kernel.
 
     Parameters
     ----------
@@ -118,6 +122,8 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
         The architecture switches (default: the full model).
     itemsize : int
         4 (float32) or 8 (float64).
+    threads : int, optional
+        The kernels' threads (default: :func:`mipnet.get_num_threads`); each keeps its own buffers.
 
     Returns
     -------
@@ -195,8 +201,19 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     backward = level(shared + 256 + max(ip_call if cfg.use_ip else 0, rls_call if cfg.use_rls else 0) + 2 * 384, 4)
     # one stack of convz and convr weights per GRU pass, kept by its convolutions (shared by all calls)
     stacked = itemsize * 256 * (((352 * 9 + 1) if cfg.use_ip else 0) + (2 * (384 * 5 + 1) if cfg.use_rls else 0))
+    # kernel-sized buffers of the weight gradients, at the largest kernel (a GRU pass's stacked convz
+    # and convr): per thread the kept partial sums and the im2col scratch; once the gradient and its
+    # reordered copy (direct) or the transformed dU (Winograd F(4x4, 3x3): 36 values per 9 taps)
+    largest = itemsize * 256 * max(352 * 9 if cfg.use_ip else 0, 384 * 5 if cfg.use_rls else 0, 128 * 9)
+    kernel_buffers = (threads or _threads()) * (DW_PARTIALS * largest + CONV_SCRATCH_BYTES) + 4 * largest
     return {"encoder": encoder, "levels": levels, "updates": updates, "heads": heads, "loss": loss, "stacked": stacked,
-            "backward": backward}
+            "backward": backward, "kernel_buffers": kernel_buffers}
+
+
+def _threads() -> int:
+    from .. import get_num_threads
+
+    return get_num_threads()
 
 
 def kept_kernel_bytes(model: Any, height: int, width: int) -> int:
