@@ -58,10 +58,11 @@ def test_cli_two_steps_writes_log_weights_checkpoint(tmp_path):
     assert config["crop"] == [64, 96] and config["iters"] == [1, 1] and config["lr"] == 4e-4  # cpu preset's LR
 
 
-def test_resume_is_bitwise_identical(tmp_path):
+@pytest.mark.parametrize("ema_decay", [0.0, 0.9])
+def test_resume_is_bitwise_identical(tmp_path, ema_decay):
     straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
-    fit(_tiny_config(steps=6), straight, progress=False)
-    fit(_tiny_config(steps=3, schedule_steps=6), split, progress=False)
+    fit(_tiny_config(steps=6, ema_decay=ema_decay), straight, progress=False)
+    fit(_tiny_config(steps=3, schedule_steps=6, ema_decay=ema_decay), split, progress=False)
     assert load_latest_checkpoint(split).step == 3
     fit(None, split, resume=True, steps=6, progress=False)
     assert _losses(straight) == _losses(split)
@@ -70,6 +71,23 @@ def test_resume_is_bitwise_identical(tmp_path):
     assert list(a) == list(b)
     for key in a:
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_a_run_with_ema_decay_saves_the_average_of_its_steps(tmp_path):
+    """model.safetensors holds the checkpoint's moving average, which is neither the last step's weights
+    nor the initial ones; the model trains on from its own weights."""
+    run = str(tmp_path / "run")
+    fit(_tiny_config(steps=3, ema_decay=0.5), run, progress=False)
+    state = load_latest_checkpoint(run)
+    saved = _weights(run)
+    assert state.average is not None and set(state.average) < set(saved)
+    moved = 0
+    for name, avg in state.average.items():
+        np.testing.assert_array_equal(saved[name], avg, err_msg=name)
+        moved += not np.array_equal(avg, state.model[name])
+    assert moved > 0
+    for name in set(saved) - set(state.average):  # BatchNorm's running statistics: the model's own
+        np.testing.assert_array_equal(saved[name], state.model[name], err_msg=name)
 
 
 def _tiny_state(step=5):

@@ -18,7 +18,7 @@ from ..training.config import NOISE_SOURCES, PRESETS, RESUMABLE_OVERRIDES, load_
 # flags that map one-to-one onto TrainConfig fields
 _FIELDS = ("steps", "schedule_steps", "batch_size", "crop", "iters", "lr", "init", "seed", "val_every", "val_pairs",
            "val_size", "val_data", "checkpoint_every", "workers", "data", "veil", "noise",
-           "noise_sources", "spatial_scale", "edge_weight")
+           "noise_sources", "spatial_scale", "edge_weight", "ema_decay")
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -58,6 +58,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="probability of the dim-light and sensor-noise augmentation (default 0)")
     p.add_argument("--edge-weight", type=float, metavar="W",
                    help="add W times the mean error within 12 px of a ground-truth depth jump to the loss (default 0)")
+    p.add_argument("--ema-decay", type=float, metavar="D",
+                   help="validate and save a moving average of the weights, avg = D avg + (1 - D) weights after "
+                        "every step (e.g. 0.99; default 0: the last step's weights)")
     p.add_argument("--noise-sources", choices=NOISE_SOURCES,
                    help="sources the noise reaches: all (default), or air (not the generated under-water ones)")
     p.add_argument("--freeze-bn", dest="freeze_bn", action="store_true", default=None,

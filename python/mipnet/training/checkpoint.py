@@ -3,7 +3,7 @@
 A checkpoint holds the model's state dict (parameters and BatchNorm buffers), AdamW's moments and
 step counts, the one-cycle schedule's position, the training step, the data loader's position
 (epoch and batch) and the state of mipnet's global generator (the gamma draws of training mode),
-plus the run's ``TrainConfig``. Its metadata carries a SHA-256 digest of every tensor and every other
+the run's ``TrainConfig`` and, when the run keeps one, the moving average of the weights. Its metadata carries a SHA-256 digest of every tensor and every other
 metadata entry (the step, the loader's position, the config...), so a file that was damaged after it was
 written is detected on load (files of the first format, whose digest covered the tensors only, still load); writes are atomic, so a file is never
 half-written. The newest :data:`KEEP` checkpoints are kept; loading falls back to the previous one
@@ -47,6 +47,8 @@ class TrainState:
     rng_state: dict
     config_json: str
     model_config: str
+    #: The parameters' moving average (``TrainConfig.ema_decay``), or None.
+    average: dict[str, np.ndarray] | None = None
 
 
 def _digest(tensors: Mapping[str, np.ndarray], meta: Mapping[str, str] | None = None) -> str:
@@ -68,6 +70,7 @@ def _flatten(state: TrainState) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     for index, entries in state.optimizer["state"].items():
         for name, value in entries.items():
             tensors[f"optim/{index}/{name}"] = np.asarray(value)
+    tensors.update({f"average/{k}": v for k, v in (state.average or {}).items()})
     meta = {"format": FORMAT, "step": str(state.step), "epoch": str(state.epoch), "batch": str(state.batch),
             "schedule": json.dumps(state.schedule), "rng_state": json.dumps(state.rng_state),
             "param_groups": json.dumps(state.optimizer["param_groups"]), "config": state.config_json,
@@ -82,6 +85,7 @@ def _unflatten(tensors: dict[str, np.ndarray], meta: dict[str, str], path: str) 
     if meta.get("digest") != _digest(tensors, meta if meta["format"] == FORMAT else None):
         raise FormatError(f"{path}: checkpoint digest mismatch (the file was damaged after it was written)")
     model = {k[len("model/"):]: v for k, v in tensors.items() if k.startswith("model/")}
+    average = {k[len("average/"):]: v for k, v in tensors.items() if k.startswith("average/")} or None
     optim_state: dict[int, dict] = {}
     for key, value in tensors.items():
         if key.startswith("optim/"):
@@ -91,7 +95,7 @@ def _unflatten(tensors: dict[str, np.ndarray], meta: dict[str, str], path: str) 
         return TrainState(step=int(meta["step"]), epoch=int(meta["epoch"]), batch=int(meta["batch"]), model=model,
                           optimizer={"state": optim_state, "param_groups": json.loads(meta["param_groups"])},
                           schedule=json.loads(meta["schedule"]), rng_state=json.loads(meta["rng_state"]),
-                          config_json=meta["config"], model_config=meta["model_config"])
+                          config_json=meta["config"], model_config=meta["model_config"], average=average)
     except (KeyError, ValueError) as e:
         raise FormatError(f"{path}: checkpoint metadata is incomplete ({e})") from None
 

@@ -78,6 +78,10 @@ class TrainConfig:
         Weight of a second loss term, the mean error over the valid pixels within
         :data:`mipnet.model.losses.EDGE_RADIUS` px of a ground-truth depth jump (``sequence_loss``'s
         ``edge_weight``); 0 (default): the plain loss.
+    ema_decay : float
+        Keep a moving average of the weights, avg ← d · avg + (1 − d) · θ after every step
+        (:class:`mipnet.training.average.WeightAverage`), and validate and save it instead of the last
+        step's weights; 0 (default): off. 0.99 averages over about the last 100 steps.
     noise_sources : str
         Which sources the noise augmentation reaches: ``"all"`` (default), or ``"air"``: every source
         but the generated under-water ones (``scenes-underwater``, ``synthetic-underwater``), whose
@@ -115,6 +119,7 @@ class TrainConfig:
     veil: float = 0.0
     noise: float = 0.0
     edge_weight: float = 0.0
+    ema_decay: float = 0.0
     noise_sources: str = "all"
     data: list[str] = dataclasses.field(default_factory=lambda: list(DEFAULT_DATA))
     init: str | None = None
@@ -138,7 +143,8 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool):
                 raise ArgumentError(f"TrainConfig: {name} must be an integer, got {value!r}")
-        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp", "veil", "noise", "edge_weight"):
+        for name in ("lr", "weight_decay", "pct_start", "clip", "gamma", "max_disp", "veil", "noise", "edge_weight",
+                     "ema_decay"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
                 raise ArgumentError(f"TrainConfig: {name} must be a finite number, got {value!r}")
@@ -167,6 +173,8 @@ class TrainConfig:
         for name in ("veil", "noise"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ArgumentError(f"TrainConfig: {name} is a probability in [0, 1], got {getattr(self, name)}")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ArgumentError(f"TrainConfig: ema_decay must lie in [0, 1), got {self.ema_decay}")
         if self.edge_weight < 0:
             raise ArgumentError(f"TrainConfig: edge_weight must be >= 0, got {self.edge_weight}")
         if self.val_every < 0 or self.val_pairs < 0 or self.workers < 0:

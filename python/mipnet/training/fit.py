@@ -3,7 +3,7 @@
 A run lives in one folder::
 
     RUN/log.jsonl             one JSON object per step and per validation
-    RUN/model.safetensors     the latest weights (``mipnet.load``)
+    RUN/model.safetensors     the latest weights (``mipnet.load``; their moving average with ``ema_decay``)
     RUN/best.safetensors      the weights of the best validation so far (mean EPE over the generated sets)
     RUN/config.json           the resolved TrainConfig
     RUN/checkpoint/           the resumable state (see :mod:`mipnet.training.checkpoint`)
@@ -42,6 +42,7 @@ from ..model.network import MIPNet, load
 from ..optim import AdamW, OneCycleLR, clip_grad_norm_
 from ..random import default_generator, manual_seed
 from .augment import make_augmentor
+from .average import WeightAverage
 from .checkpoint import TrainState, list_checkpoints, load_latest_checkpoint, save_checkpoint
 from .config import RESUMABLE_OVERRIDES, TrainConfig
 from ..data.registry import EVAL_SEED_START, Mixture, is_sparse, open_spec, parse_spec, renders_sensor_noise
@@ -314,6 +315,11 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
         schedule.load_state_dict(state.schedule)
         default_generator().bit_generator.state = state.rng_state
         position = Position(state.step, state.epoch, state.batch)
+    average = WeightAverage(model, config.ema_decay) if config.ema_decay else None
+    if average is not None and state is not None and state.average is not None:
+        average.load_state_dict(state.average)
+    # the weights a run validates and saves: the moving average where it keeps one
+    saved_weights = average.applied if average is not None else contextlib.nullcontext
     log.truncate_after(position.step)
     save_json(os.path.join(out, "config.json"), dataclasses.asdict(config))
     loader.set_epoch(position.epoch, position.batch)
@@ -330,13 +336,16 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
         save_checkpoint(out, TrainState(step=position.step, epoch=position.epoch, batch=position.batch,
                                         model=model.state_dict(), optimizer=optimizer.state_dict(),
                                         schedule=schedule.state_dict(), rng_state=default_generator().bit_generator.state,
-                                        config_json=config.to_json(), model_config=model.config.to_json()))
-        model.save(os.path.join(out, "model.safetensors"), **_weights_metadata(config, position.step))
+                                        config_json=config.to_json(), model_config=model.config.to_json(),
+                                        average=average.state_dict() if average is not None else None))
+        with saved_weights():
+            model.save(os.path.join(out, "model.safetensors"), **_weights_metadata(config, position.step))
 
     def validate() -> None:
         nonlocal best, sgbm_logged
         model.eval()
-        table = validate_model(lambda l, r: model(l, r, iters=config.val_iters), val_sets)
+        with saved_weights():
+            table = validate_model(lambda l, r: model(l, r, iters=config.val_iters), val_sets)
         model.train()
         reference = None
         if not sgbm_logged:
@@ -349,7 +358,8 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
         score = mean_epe(table)
         if score < best:
             best = score
-            model.save(os.path.join(out, "best.safetensors"), **_weights_metadata(config, position.step, validation=table))
+            with saved_weights():
+                model.save(os.path.join(out, "best.safetensors"), **_weights_metadata(config, position.step, validation=table))
 
     def train_step(sample: dict) -> dict:
         optimizer.zero_grad()
@@ -357,6 +367,8 @@ def fit(config: TrainConfig | None, out: str, *, resume: bool = False, steps: in
         grad_norm = clip_grad_norm_(model.parameters(), config.clip)
         lr = optimizer.param_groups[0]["lr"]
         optimizer.step()
+        if average is not None:
+            average.update()
         schedule.step()
         return {"loss": loss, "lr": lr, "grad_norm": grad_norm,
                 **sequence_metrics(final, sample["disparity"], sample["valid"], config.max_disp)}
