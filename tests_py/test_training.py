@@ -170,7 +170,8 @@ def test_validation_records_and_best_weights(tmp_path):
     vals = [r for r in TrainLog(os.path.join(run, "log.jsonl")).records() if "val" in r]
     assert len(vals) == 1 and vals[0]["step"] == 2
     photos = {"photos"} if photo_pairs_available() else set()
-    assert set(vals[0]["val"]) == {"air", "turbid", "low_light", "scenes", "scenes_veiled"} | photos
+    assert set(vals[0]["val"]) == {"air", "turbid", "low_light", "turbid_survey", "low_light_survey", "scenes",
+                                   "scenes_veiled"} | photos
     for metrics in vals[0]["val"].values():
         assert metrics["epe"] > 0 and 0 <= metrics["bad3"] <= 100
     assert os.path.isfile(os.path.join(run, "best.safetensors"))
@@ -272,6 +273,9 @@ def test_veiled_validation_set_fades_the_lower_rows_and_stays_out_of_the_mean():
         assert veiled[view][-10:].mean() > 150
     table = {k: {"epe": float(i + 1)} for i, k in enumerate(("air", "turbid", "low_light", "scenes"))}
     assert mean_epe({**table, "scenes_veiled": {"epe": 100.0}}) == mean_epe(table) == 2.5
+    # with the survey-like sets the under-water terms are theirs, not the sets where the water hides most pixels
+    survey = {**table, "turbid_survey": {"epe": 10.0}, "low_light_survey": {"epe": 20.0}}
+    assert mean_epe(survey) == (1 + 10 + 20 + 4) / 4
 
 
 def test_bad_config_file_and_presets(tmp_path):
