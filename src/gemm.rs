@@ -29,7 +29,7 @@ pub use cpu::{cpu_info, CpuInfo};
 pub use crate::isa::{Isa, ISA_ENV};
 pub(crate) use kernel::Init;
 use kernel::{Tile, UKernel};
-pub(crate) use pack::{InPlace, PackB, Prepacked, SourceA, Strided};
+pub(crate) use pack::{pair_panel, InPlace, InPlacePairs, PackB, Prepacked, SourceA, Strided};
 pub use peak::fma_peak_gflops;
 
 use crate::{Error, Float, Result};
@@ -372,16 +372,23 @@ pub(crate) unsafe fn run<E: Float>(plan: &Plan<E>, m: usize, n: usize, k: usize,
                     // B block width: nc rounded up to NR (the last micro-tile reads NR columns);
                     // the block read in place, or packed with row stride ldb
                     let width = nc.div_ceil(nr) * nr;
-                    let (pb, ldb) = b.in_place(p0, jc, width).unwrap_or_else(|| {
-                        b.pack(plan, p0, kc, jc, nc, pb, width);
-                        (pb.cast_const(), width)
-                    });
+                    let f32_block = |pb: *mut E| {
+                        b.in_place(p0, jc, width).unwrap_or_else(|| {
+                            b.pack(plan, p0, kc, jc, nc, pb, width);
+                            (pb.cast_const(), width)
+                        })
+                    };
                     // the kernel's depth steps, and where the block's A panels start (in units of mpad)
                     let (pb, ldb, depth, a_block) = if plan.pairs {
-                        // SAFETY: the block has kc rows of width elements ldb apart; `pb_pairs` has room for its pairs.
-                        unsafe { pack::pair_panel(kc, width, pb.cast(), ldb, pb_pairs.cast()) };
-                        (pb_pairs.cast_const(), width, kc.div_ceil(2), p0 / 2)
+                        let (pairs, ldp) = b.paired_in_place(p0, jc, width).unwrap_or_else(|| {
+                            let (pb, ldb) = f32_block(pb);
+                            // SAFETY: the block has kc rows of width elements ldb apart; `pb_pairs` has room for its pairs.
+                            unsafe { pack::pair_panel(kc, width, pb.cast(), ldb, pb_pairs.cast()) };
+                            (pb_pairs.cast_const(), width)
+                        });
+                        (pairs, ldp, kc.div_ceil(2), p0 / 2)
                     } else {
+                        let (pb, ldb) = f32_block(pb);
                         (pb, ldb, kc, p0)
                     };
                     for ir in (0..mc).step_by(mr) {

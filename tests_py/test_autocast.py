@@ -73,16 +73,25 @@ def test_direct_conv_matches_torch_autocast():
 
 
 @needs_bf16
-def test_winograd_conv_error_is_stated():
-    """A 3x3 convolution large enough for Winograd F(4x4, 3x3) rounds its transformed operands to bf16, not
-    its inputs: measured against float32, mean error 1.0e-3 and largest 3.8e-2 of Σ|terms| (torch's autocast,
-    direct: 1.5e-4 and 1.1e-3). The bounds keep that, with room for another CPU's rounding of the same sums."""
-    x, weight, bias = conv_case(4, 64, 64, 48, 64, 3)
+@pytest.mark.parametrize("n, cin, cout, h, w, kernel", [(4, 64, 64, 48, 64, (3, 3)), (1, 33, 40, 44, 52, (3, 3)),
+                                                        (2, 37, 40, 20, 36, (1, 5)), (2, 37, 40, 36, 20, (5, 1))],
+                         ids=["3x3", "3x3-odd-channels-and-tiles", "1x5-odd-channels", "5x1-odd-channels"])
+def test_winograd_conv_error_is_stated(n, cin, cout, h, w, kernel):
+    """A convolution large enough for Winograd (F(4x4, 3x3), F(4, 5)) rounds its transformed operands to bf16,
+    which the transforms write as pairs of input channels (an odd channel count leaves the last pair half
+    empty): not its inputs. 3x3 64->64 measured against float32: mean error 1.0e-3 and largest 3.8e-2 of
+    Σ|terms| (torch's autocast, direct: 1.5e-4 and 1.1e-3). The bounds keep that, with room for another CPU's
+    rounding of the same sums."""
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((n, cin, h, w)).astype(np.float32)
+    weight = (rng.standard_normal((cout, cin, *kernel)) / np.sqrt(cin * kernel[0] * kernel[1])).astype(np.float32)
+    bias = rng.standard_normal(cout).astype(np.float32)
+    padding = (kernel[0] // 2, kernel[1] // 2)
     with mipnet.autocast(dtype="bfloat16"):
-        got = conv(x, weight, bias, 1)
-    full = F.conv2d(torch.tensor(x), torch.tensor(weight), torch.tensor(bias), padding=1).numpy()
-    relative = np.abs(got - full) / F.conv2d(torch.tensor(np.abs(x)), torch.tensor(np.abs(weight)), padding=1).numpy()
-    print(f"\n[bf16] Winograd 3x3 64->64: error / Σ|terms| mean {relative.mean():.2e}, max {relative.max():.2e}")
+        got = conv(x, weight, bias, padding)
+    full = F.conv2d(torch.tensor(x), torch.tensor(weight), torch.tensor(bias), padding=padding).numpy()
+    relative = np.abs(got - full) / F.conv2d(torch.tensor(np.abs(x)), torch.tensor(np.abs(weight)), padding=padding).numpy()
+    print(f"\n[bf16] Winograd {kernel} {cin}->{cout}: error / Σ|terms| mean {relative.mean():.2e}, max {relative.max():.2e}")
     assert relative.mean() <= 2e-3 and relative.max() <= 8e-2
 
 

@@ -33,6 +33,13 @@ pub(crate) trait PackB<E>: Sync {
     fn in_place(&self, _p0: usize, _j0: usize, _ldb: usize) -> Option<(*const E, usize)> {
         None
     }
+
+    /// For a bf16 plan: the block at depth p0 (even), columns `j0..j0 + ldb`, already as the panel of
+    /// bf16 pairs the micro-kernel reads, where it lies: its first pair and the row stride of the pair
+    /// rows. None: the block is packed (or read in place) as f32 and paired by the GEMM.
+    fn paired_in_place(&self, _p0: usize, _j0: usize, _ldb: usize) -> Option<(*const E, usize)> {
+        None
+    }
 }
 
 /// A strided matrix `x[i, j]` = `*(ptr + i·rs + j·cs)` of rows x cols, scaled by `scale` when packed.
@@ -120,6 +127,45 @@ impl<E: Float> PackB<E> for InPlace<E> {
         let b = &self.0;
         let readable = b.cs == 1 && b.rs > 0 && b.scale == E::one() && j0 + ldb <= b.cols;
         readable.then(|| (b.at(p0, j0), b.rs as usize))
+    }
+}
+
+/// A B stored as bf16 pairs of its depth rows, in the layout [`pair_panel`] writes: `pairs` (rows =
+/// ceil(K / 2) pair rows, unit column stride) holds in element (q, j) the bits of B(2q, j) in its low
+/// half and B(2q + 1, j) in its high half (0 past K). The Winograd transforms of a bf16 plan write V so,
+/// and the micro-kernel then reads it in place; blocks with columns outside the storage are unpacked
+/// to f32 and paired again by the GEMM.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct InPlacePairs<E> {
+    pub pairs: Strided<E>,
+    /// Depth rows of B (K).
+    pub depth: usize,
+}
+
+impl<E: Float> PackB<E> for InPlacePairs<E> {
+    fn pack(&self, _plan: &Plan<E>, p0: usize, kc: usize, j0: usize, nc: usize, dst: *mut E, ldb: usize) {
+        debug_assert_eq!(std::mem::size_of::<E>(), 4, "bf16 pairs are 32-bit elements");
+        for kk in 0..kc {
+            let (q, high) = ((p0 + kk) / 2, (p0 + kk) % 2 == 1);
+            for j in 0..ldb {
+                // dst[kk·ldb + j] = B(p0 + kk, j0 + j): the pair's half widened to f32 (exact), 0 past nc
+                let value = if j < nc {
+                    // SAFETY: pair row q < ceil(K / 2) and column j0 + j < cols lie in the storage.
+                    let bits = unsafe { *self.pairs.at(q, j0 + j).cast::<u32>() };
+                    E::from_f32(f32::from_bits(if high { bits & 0xFFFF_0000 } else { bits << 16 })).unwrap_or_else(E::zero)
+                } else {
+                    E::zero()
+                };
+                // SAFETY: dst has kc rows of ldb elements (the trait's contract).
+                unsafe { *dst.add(kk * ldb + j) = value };
+            }
+        }
+    }
+
+    fn paired_in_place(&self, p0: usize, j0: usize, ldb: usize) -> Option<(*const E, usize)> {
+        let b = &self.pairs;
+        let readable = p0 % 2 == 0 && p0 < self.depth.max(1) && b.cs == 1 && b.rs > 0 && j0 + ldb <= b.cols;
+        readable.then(|| (b.at(p0 / 2, j0), b.rs as usize))
     }
 }
 

@@ -16,7 +16,7 @@
 //! measures the error against f64.
 
 use super::Geom;
-use crate::gemm::{self, InPlace, Init, Plan, Prepacked, SourceA, Strided};
+use crate::gemm::{self, InPlace, InPlacePairs, Init, PackB, Plan, Prepacked, SourceA, Strided};
 use crate::{Float, Result};
 use f4_5::Along;
 use lanes::Rows;
@@ -315,30 +315,61 @@ pub(super) fn forward<F: Float>(plan: &Plan<F>, g: &Geom, xs: &[F], w: &[F], bia
 
 /// One task: input transform of its band into V, the XI GEMMs into M, output transform into y.
 ///
+/// V is float32, V[ξ][c][tile], read in place by the GEMM; for a bf16 plan it is written as the bf16
+/// pairs of channels (2q, 2q + 1) that the micro-kernel reads (`gemm::InPlacePairs`), V[ξ][q][tile] in
+/// rows of `ldv` (the tiles rounded up to NR, zero past them), so the GEMM reads it in place too.
+///
 /// # Safety
 /// `yn` is y[n] (Cout x Ho x Wo); no other task writes the task's (channels, rows) part.
 #[allow(clippy::too_many_arguments)]
 unsafe fn band<F: Float>(scheme: Scheme, plan: &Plan<F>, g: &Geom, xn: &[F], u: &[Prepacked<F>], bias: Option<&[F]>,
                          relu: bool, t: &Task, tw: usize, yn: SharedPtr<F>) {
     let (tiles, outs, xi) = (t.rows.len() * tw, t.outs.len(), scheme.xi());
-    super::with_scratch(xi * tiles * (g.cin + outs), |buf: &mut [F]| {
-        let (v, m) = buf.split_at_mut(xi * g.cin * tiles);
-        // V[ξ][c][tile], tile = band_row·tw + t
+    // rows of V_ξ and their stride: channels, or channel pairs (bf16 plan)
+    let (vrows, ldv) = if plan.pairs { (g.cin.div_ceil(2), tiles.next_multiple_of(plan.nr)) } else { (g.cin, tiles) };
+    // a bf16 plan's float32 V of one channel pair, [ξ][2][tile], before it is paired
+    let staging = if plan.pairs { xi * 2 * tiles } else { 0 };
+    super::with_scratch(xi * vrows * ldv + staging + xi * outs * tiles, |buf: &mut [F]| {
+        let (v, rest) = buf.split_at_mut(xi * vrows * ldv);
+        let (staged, m) = rest.split_at_mut(staging);
         let plane = g.h * g.w;
         let mut rows = Rows::new(tw);
-        for (c, xc) in xn.chunks_exact(plane).enumerate() {
+        // the input transform of channel c into `out`: out[ξ·stride + at + tile], tile = band_row·tw + t
+        let mut transform = |c: usize, out: &mut [F], at: usize, stride: usize| {
             for (band_row, ty) in t.rows.clone().enumerate() {
-                scheme.input_rows(plan, g, xc, ty, tw, v, c * tiles + band_row * tw, g.cin * tiles, &mut rows);
+                scheme.input_rows(plan, g, &xn[c * plane..][..plane], ty, tw, out, at + band_row * tw, stride, &mut rows);
+            }
+        };
+        if plan.pairs {
+            for q in 0..vrows {
+                let pair = 2 * q..(2 * q + 2).min(g.cin);
+                for c in pair.clone() {
+                    transform(c, staged, (c - 2 * q) * tiles, 2 * tiles);
+                }
+                for k in 0..xi {
+                    // pair row q of V_ξ (at k·vrows·ldv + q·ldv) from staged[ξ][0..2][tile]
+                    let row = &mut v[(k * vrows + q) * ldv..][..ldv];
+                    // SAFETY: a bf16 plan runs on AVX512_BF16 with F = f32; staged holds the pair's
+                    // rows (one or two) of `tiles` values `tiles` apart, the row `tiles` pairs.
+                    unsafe { gemm::pair_panel(pair.len(), tiles, staged[k * 2 * tiles..].as_ptr().cast(), tiles, row.as_mut_ptr().cast()) };
+                    row[tiles..].fill(F::zero());
+                }
+            }
+        } else {
+            for c in 0..g.cin {
+                transform(c, v, c * tiles, g.cin * tiles);
             }
         }
         for k in 0..xi {
             // M_ξ[outs][tile] = U_ξ[outs, :] · V_ξ
-            let b = InPlace(Strided { ptr: v[k * g.cin * tiles..].as_ptr(), rows: g.cin, cols: tiles, rs: tiles as isize, cs: 1, scale: F::one() });
+            let view = Strided { ptr: v[k * vrows * ldv..].as_ptr(), rows: vrows, cols: ldv, rs: ldv as isize, cs: 1, scale: F::one() };
+            let (paired, plain) = (InPlacePairs { pairs: view, depth: g.cin }, InPlace(view));
+            let b: &dyn PackB<F> = if plan.pairs { &paired } else { &plain };
             let c = m[k * outs * tiles..].as_mut_ptr();
             // SAFETY: M_ξ is outs x tiles in this task's buffer; U_ξ has Cout >= t.outs.end rows and
-            // V_ξ Cin x tiles, both over Cin.
+            // V_ξ Cin x tiles (or its pairs), both over Cin.
             unsafe {
-                gemm::run(plan, outs, tiles, g.cin, SourceA::Rows(&u[k], t.outs.start), &b, c, tiles as isize, 1, Init::Zero,
+                gemm::run(plan, outs, tiles, g.cin, SourceA::Rows(&u[k], t.outs.start), b, c, tiles as isize, 1, Init::Zero,
                           false)
             };
         }
