@@ -199,12 +199,16 @@ def activation_terms(height: int, width: int, batch: int = 1, mode: str = "eval"
     # tensors all 1/4 iterations read (shared, hidden and context), those flowing through one update,
     # and a GRU pass's rebuilt [r h, x] with its gradient (2 x 384)
     backward = level(shared + 256 + max(ip_call if cfg.use_ip else 0, rls_call if cfg.use_rls else 0) + 2 * 384, 4)
-    # one stack of convz and convr weights per GRU pass, kept by its convolutions (shared by all calls)
-    stacked = itemsize * 256 * (((352 * 9 + 1) if cfg.use_ip else 0) + (2 * (384 * 5 + 1) if cfg.use_rls else 0))
-    # kernel-sized buffers of the weight gradients, at the largest kernel (a GRU pass's stacked convz
-    # and convr): per thread the kept partial sums and the im2col scratch; once the gradient and its
-    # reordered copy (direct) or the transformed dU (Winograd F(4x4, 3x3): 36 values per 9 taps)
-    largest = itemsize * 256 * max(352 * 9 if cfg.use_ip else 0, 384 * 5 if cfg.use_rls else 0, 128 * 9)
+    # one stack of convz and convr weights and biases per GRU pass, kept by its convolutions (shared by
+    # all calls): the IP pass's 3x3 over 352 channels, each of the RLS's two passes 1x5 / 5x1 over 384
+    ip_stack = 256 * (352 * 9 + 1) if cfg.use_ip else 0
+    rls_stack = 256 * (384 * 5 + 1) if cfg.use_rls else 0
+    stacked = itemsize * (ip_stack + 2 * rls_stack)
+    # kernel-sized buffers of the weight gradients, at the largest kernel (a stack above, else a
+    # prediction head's 3x3 128 -> 256): per thread the kept partial sums and the im2col scratch; once
+    # the gradient and its reordered copy (direct) or the transformed dU (Winograd F(4x4, 3x3): 36
+    # values per 9 taps)
+    largest = itemsize * max(ip_stack, rls_stack, 256 * 128 * 9)
     kernel_buffers = (threads or _threads()) * (DW_PARTIALS * largest + CONV_SCRATCH_BYTES) + 4 * largest
     return {"encoder": encoder, "levels": levels, "updates": updates, "heads": heads, "loss": loss, "stacked": stacked,
             "backward": backward, "kernel_buffers": kernel_buffers}
