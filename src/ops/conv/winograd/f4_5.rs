@@ -91,57 +91,59 @@ pub(super) fn weight_grad<F: Float>(du: impl Fn(usize) -> F, dw: &mut [F]) {
     }
 }
 
+/// Where the values of one row of tiles come from: along x one row (None: a row of zeros) read as
+/// zero-padded by `pw` columns in front; along y N whole rows, one per tile position, zero rows
+/// outside the plane (read as padded by `pw` columns in front, the tile of column t at row column
+/// t − pw).
+pub(super) enum Source<'a, F, const N: usize> {
+    Row(Option<&'a [F]>),
+    Rows([&'a [F]; N]),
+}
+
 /// `V[ξ]` rows of tile row ty: `v[ξ·xi_stride + at + t]` = (Bᵀ d)[ξ], d the 8 input values of tile t
 /// (along x: `x[ty − ph, 4·t − pw ..]`; along y: `x[4·ty − ph .., t − pw]`; 0 outside the plane `xc`).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn input_rows<F: Float>(along: Along, isa: Isa, g: &Geom, xc: &[F], ty: usize, tw: usize, v: &mut [F], at: usize,
                                    xi_stride: usize, buf: &mut Rows<F>) {
-    let (ph, pw) = (g.pad[0] as isize, g.pad[1] as isize);
+    let ph = g.pad[0] as isize;
     // input row iy, None above or below the image
     let input_row = |iy: isize| (iy >= 0 && (iy as usize) < g.h).then(|| &xc[iy as usize * g.w..(iy as usize + 1) * g.w]);
-    let x_row = match along {
-        // along x, the one input row ty − ph, read as padded by pw columns in front
-        Along::X => input_row(ty as isize - ph),
-        Along::Y => {
-            // 8 padded input rows of Wo columns: r[s] = x[4·ty − ph + r, s − pw] for s in 0..Wo
-            for (r, row) in buf.patch.chunks_exact_mut(g.wo).take(8).enumerate() {
-                row.fill(F::zero());
-                if let Some(src) = input_row((TILE * ty) as isize - ph + r as isize) {
-                    // columns s − pw for s in [pw, pw + W) ∩ [0, Wo)
-                    let (s0, s1) = ((pw as usize).min(g.wo), (pw as usize + g.w).min(g.wo));
-                    row[s0..s1].copy_from_slice(&src[..s1 - s0]);
-                }
-            }
-            None
-        }
+    let source = match along {
+        // along x, the one input row ty − ph
+        Along::X => Source::Row(input_row(ty as isize - ph)),
+        // along y, tile position r of column t is input row 4·ty − ph + r
+        Along::Y => Source::Rows(std::array::from_fn(|r| input_row((TILE * ty + r) as isize - ph).unwrap_or(&buf.zeros[..g.w]))),
     };
-    input_row_isa(isa, along, x_row, pw as usize, g.wo, tw, buf, v, at, xi_stride);
+    input_row_isa(isa, source, g.pad[1], tw, &mut buf.phase, v, at, xi_stride);
 }
 
 per_isa!(
     /// [`input_row`] for the plan's ISA.
-    input_row_isa => input_row (along: Along, x_row: Option<&[F]>, pw: usize, width: usize, tw: usize, buf: &mut Rows<F>,
-                                v: &mut [F], at: usize, xi_stride: usize)
+    input_row_isa => input_row (source: Source<'_, F, 8>, pw: usize, tw: usize, phase: &mut [F], v: &mut [F], at: usize,
+                                xi_stride: usize)
 );
 
-/// The input transform of one row of tiles into `v[ξ·xi_stride + at + t]`: along x from the input
-/// row `x_row` (padded by `pw` columns in front), along y from the 8 padded input rows of `width`
-/// columns in `buf.patch`.
+/// The input transform of one row of tiles from `source` into `v[ξ·xi_stride + at + t]`.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn input_row<F: Float>(along: Along, x_row: Option<&[F]>, pw: usize, width: usize, tw: usize, buf: &mut Rows<F>, v: &mut [F],
-                       at: usize, xi_stride: usize) {
-    let Rows { patch, phase, .. } = buf;
-    let mut out_rows = strided_rows_mut(v, at, xi_stride, tw);
-    match along {
-        Along::X => {
+fn input_row<F: Float>(source: Source<'_, F, 8>, pw: usize, tw: usize, phase: &mut [F], v: &mut [F], at: usize, xi_stride: usize) {
+    match source {
+        Source::Row(x_row) => {
             // d_j[tx] = padded row[4·tx + j]: phase j % 4 from tile tx + j / 4
             split_phases(x_row, pw, tw + 1, phase);
             let d = std::array::from_fn(|j| &phase[(j % 4) * (tw + 1) + j / 4..][..tw]);
-            map_tiles::<F, InputTransform, 8, 8>(d, &mut out_rows);
+            map_tiles::<F, InputTransform, 8, 8>(d, &mut strided_rows_mut(v, at, xi_stride, tw));
         }
-        // d_j[ox] = patch row j
-        Along::Y => map_tiles::<F, InputTransform, 8, 8>(strided_rows(patch, 0, width, tw), &mut out_rows),
+        Source::Rows(rows) => {
+            // d_j[t] = row j at column t − pw, for the tiles pw .. pw + W over the plane's columns
+            let width = rows[0].len();
+            map_tiles::<F, InputTransform, 8, 8>(rows, &mut strided_rows_mut(v, at + pw, xi_stride, width));
+            // the tiles over the padding columns transform zeros into zeros
+            for k in 0..8 {
+                let row = &mut v[k * xi_stride + at..][..tw];
+                row[..pw].fill(F::zero());
+                row[pw + width..].fill(F::zero());
+            }
+        }
     }
 }
 
@@ -195,45 +197,33 @@ pub(super) fn grad_output_rows<F: Float>(along: Along, isa: Isa, g: &Geom, dyo: 
                                          at: usize, xi_stride: usize, buf: &mut Rows<F>) {
     // dY row oy, None below the image
     let dy_row = |oy: usize| (oy < g.ho).then(|| &dyo[oy * g.wo..(oy + 1) * g.wo]);
-    let x_row = match along {
+    let source = match along {
         // along x, the one dY row ty
-        Along::X => dy_row(ty),
-        Along::Y => {
-            // dY rows 4·ty + i, i < 4, of Wo columns, zero below the image
-            for (i, row) in buf.patch.chunks_exact_mut(g.wo).take(TILE).enumerate() {
-                match dy_row(TILE * ty + i) {
-                    Some(src) => row.copy_from_slice(src),
-                    None => row.fill(F::zero()),
-                }
-            }
-            None
-        }
+        Along::X => Source::Row(dy_row(ty)),
+        // along y, tile position i of column t is dY row 4·ty + i
+        Along::Y => Source::Rows(std::array::from_fn(|i| dy_row(TILE * ty + i).unwrap_or(&buf.zeros[..g.wo]))),
     };
-    grad_output_row_isa(isa, along, x_row, g.wo, tw, buf, dm, at, xi_stride);
+    grad_output_row_isa(isa, source, tw, &mut buf.phase, dm, at, xi_stride);
 }
 
 per_isa!(
     /// [`grad_output_row`] for the plan's ISA.
-    grad_output_row_isa => grad_output_row (along: Along, x_row: Option<&[F]>, width: usize, tw: usize, buf: &mut Rows<F>,
-                                            dm: &mut [F], at: usize, xi_stride: usize)
+    grad_output_row_isa => grad_output_row (source: Source<'_, F, 4>, tw: usize, phase: &mut [F], dm: &mut [F], at: usize,
+                                            xi_stride: usize)
 );
 
-/// The adjoint output transform of one row of tiles into `dm[ξ·xi_stride + at + t]`: along x from
-/// the dY row `x_row` (columns past Wo read as 0), along y from the 4 dY rows of `width` columns in
-/// `buf.patch`.
+/// The adjoint output transform of one row of tiles from `source` (columns past Wo read as 0) into
+/// `dm[ξ·xi_stride + at + t]`.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn grad_output_row<F: Float>(along: Along, x_row: Option<&[F]>, width: usize, tw: usize, buf: &mut Rows<F>, dm: &mut [F],
-                             at: usize, xi_stride: usize) {
-    let Rows { patch, phase, .. } = buf;
+fn grad_output_row<F: Float>(source: Source<'_, F, 4>, tw: usize, phase: &mut [F], dm: &mut [F], at: usize, xi_stride: usize) {
     let mut out_rows = strided_rows_mut(dm, at, xi_stride, tw);
-    match along {
-        Along::X => {
+    match source {
+        Source::Row(x_row) => {
             // y_i[tx] = row[4·tx + i]
             split_phases(x_row, 0, tw, phase);
             map_tiles::<F, GradOutputTransform, 4, 8>(strided_rows(phase, 0, tw, tw), &mut out_rows);
         }
-        // y_i[ox] = dY row 4·ty + i
-        Along::Y => map_tiles::<F, GradOutputTransform, 4, 8>(strided_rows(patch, 0, width, tw), &mut out_rows),
+        // y_i[t] = row i of the tile row at column t
+        Source::Rows(rows) => map_tiles::<F, GradOutputTransform, 4, 8>(rows.map(|row| &row[..tw]), &mut out_rows),
     }
 }

@@ -104,11 +104,11 @@ pub(super) fn strided_rows<F, const N: usize>(buf: &[F], first: usize, stride: u
 }
 
 /// Per-thread buffers of the transforms of one tile row (a few KiB, reused across calls), sized
-/// for every scheme (a row scheme reads its input and dY rows in place; a column scheme's row has
+/// for every scheme (every scheme reads its input and dY rows in place; a column scheme's row has
 /// tw = Wo tiles).
 pub(super) struct Rows<F> {
-    /// A column scheme's zero-padded input rows (8 x Wo) or dY rows (4 x Wo).
-    pub patch: Vec<F>,
+    /// A row of zeros (a column scheme's rows outside the plane; tw = Wo there).
+    pub zeros: Vec<F>,
     /// Phases of a padded row: `phase[m][tx]` = row[4·tx + m], m < 4, tx <= tw.
     pub phase: Vec<F>,
     /// A transform along x, per patch row or per output row: 36 x tw.
@@ -117,7 +117,7 @@ pub(super) struct Rows<F> {
 
 impl<F: Float> Rows<F> {
     pub fn new(tw: usize) -> Self {
-        Rows { patch: vec![F::zero(); 8 * tw], phase: vec![F::zero(); 4 * (tw + 1)], ex: vec![F::zero(); 36 * tw] }
+        Rows { zeros: vec![F::zero(); tw], phase: vec![F::zero(); 4 * (tw + 1)], ex: vec![F::zero(); 36 * tw] }
     }
 }
 
