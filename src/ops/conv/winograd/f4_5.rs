@@ -91,10 +91,9 @@ pub(super) fn weight_grad<F: Float>(du: impl Fn(usize) -> F, dw: &mut [F]) {
     }
 }
 
-/// Where the values of one row of tiles come from: along x one row (None: a row of zeros) read as
-/// zero-padded by `pw` columns in front; along y N whole rows, one per tile position, zero rows
-/// outside the plane (read as padded by `pw` columns in front, the tile of column t at row column
-/// t − pw).
+/// Where the values of one row of tiles come from: along x one row (None: a row of zeros); along y
+/// N whole rows, one per tile position, a row of zeros outside the plane. The input transform reads
+/// either as zero-padded by `pw` columns in front (along y, the tile of column t at row column t − pw).
 pub(super) enum Source<'a, F, const N: usize> {
     Row(Option<&'a [F]>),
     Rows([&'a [F]; N]),
