@@ -5,7 +5,8 @@
 #
 #   scripts/campaign.sh cycle [STEPS] [RECIPE]   # a new one-cycle run of STEPS (default 1000) with RECIPE
 #                                               # (default campaign-s12) from the shipped weights (or
-#                                               # INIT=weights.safetensors), in $ROOT/train/cycle-DATE
+#                                               # INIT=weights.safetensors), in $ROOT/train/cycle-DATE; the data
+#                                               # seed is the start time, or SEED=S (to pair it with an earlier run)
 #   scripts/campaign.sh resume RUN              # resume the run folder RUN (a name under $ROOT/train)
 #   scripts/campaign.sh stop                    # SIGTERM: the run checkpoints after its step and exits
 #   scripts/campaign.sh status                  # last log lines and validation of every run
@@ -39,9 +40,9 @@ case "${1:-}" in
     stamp=$(date -u +%Y%m%d-%H%M)
     run=$ROOT/train/cycle-$stamp
     mkdir -p "$run" && cp "${INIT:-$SHIPPED}" "$run/init.safetensors"
-    # each cycle's data seed is its start time, so it draws pairs no earlier cycle saw
+    # each cycle's data seed is its start time, so it draws pairs no earlier cycle saw (unless SEED is given)
     launch "$run" --config "${3:-campaign-s12}" --steps "${2:-1000}" --init "$run/init.safetensors" \
-      --seed $(( 10#${stamp//-/} % 2147483647 )) --out "$run"
+      --seed "${SEED:-$(( 10#${stamp//-/} % 2147483647 ))}" --out "$run"
     ;;
   resume)
     require_idle
